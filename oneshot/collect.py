@@ -1,0 +1,132 @@
+"""Collect expert demonstrations into a dataset: `python -m oneshot.collect --help`.
+
+N tasks (distinct target colours of one split) x K demos per task, each demo a fresh scene. Every
+demo's scene seed is derived from (seed, task, demo, attempt), so the dataset is the same whatever
+the number of worker processes. A demo the expert fails is retried on a fresh scene and counted in
+the metadata ("failed_attempts").
+"""
+import argparse
+import dataclasses
+import multiprocessing
+import os
+import time
+
+import numpy as np
+from tqdm import tqdm
+
+from oneshot import data, expert, palette
+from oneshot.world import ReachWorld, WorldConfig
+
+MAX_ATTEMPTS = 10
+
+
+def scene_seed(seed, task, k, attempt):
+    """The seed of demo k of task `task` at the given attempt: an int64 derived from all four."""
+    return int(np.random.SeedSequence([seed, 1, task, k, attempt]).generate_state(1, np.uint64)[0] >> 1)
+
+
+def task_colours(n_tasks, split, seed, palette_cfg=palette.PaletteConfig()):
+    """n_tasks distinct colours of the split, in a seeded random order. -> (n_tasks,) int."""
+    colours = palette.split_colours(split, palette_cfg)
+    if not 1 <= n_tasks <= len(colours):
+        raise ValueError(f"the {split!r} split has {len(colours)} colours, so 1 to {len(colours)} tasks; "
+                         f"got {n_tasks} (collect more demos per task instead)")
+    return np.random.default_rng([seed, 0]).permutation(colours)[:n_tasks]
+
+
+_WORLD = {}
+
+
+def _demo_job(job):
+    """Worker: record demo k of a task, retrying on failure. Returns (task, k, demo, seed, failures)."""
+    world_cfg, expert_cfg, colour, task, k, seed = job
+    world = _WORLD.get(world_cfg) or _WORLD.setdefault(world_cfg, ReachWorld(world_cfg))
+    for attempt in range(MAX_ATTEMPTS):
+        s = scene_seed(seed, task, k, attempt)
+        d = expert.demonstrate(world, seed=s, options={"target_colour": int(colour)}, cfg=expert_cfg)
+        if d["success"]:
+            return task, k, d, s, attempt
+    raise RuntimeError(f"the expert failed {MAX_ATTEMPTS} scenes in a row for task {task} (colour "
+                       f"{colour}); the world or expert configuration is probably broken")
+
+
+def collect(n_tasks, demos_per_task, split="train", seed=0, workers=None, world_cfg=None,
+            expert_cfg=expert.ExpertConfig(), progress=True):
+    """Record a dataset (see `oneshot.data`). workers: processes (default: all cores)."""
+    if demos_per_task < 2:
+        raise ValueError(f"MAML needs at least 2 demos per task (one to adapt on, one to evaluate); "
+                         f"got {demos_per_task}")
+    world_cfg = dataclasses.replace(world_cfg or WorldConfig(), split=split)
+    colours = task_colours(n_tasks, split, seed, world_cfg.palette)
+    jobs = [(world_cfg, expert_cfg, colours[i], i, k, seed)
+            for i in range(n_tasks) for k in range(demos_per_task)]
+    N, K, T, S = n_tasks, demos_per_task, world_cfg.horizon, world_cfg.image_size
+    n_obj = world_cfg.n_objects
+    out = {"images": np.zeros((N, K, T, S, S, 3), np.uint8), "states": np.zeros((N, K, T, 6), np.float32),
+           "actions": np.zeros((N, K, T, 2), np.float32), "task_colours": colours.astype(np.int16),
+           "colours": np.zeros((N, K, n_obj), np.int16), "positions": np.zeros((N, K, n_obj, 2), np.float32),
+           "target_index": np.zeros((N, K), np.int8), "seeds": np.zeros((N, K), np.int64)}
+    failures, iterations = 0, []
+    workers = workers or os.cpu_count() or 1
+    start = time.perf_counter()
+    bar = tqdm(total=len(jobs), desc=f"collecting {split} demos", unit="demo", disable=not progress)
+    with multiprocessing.get_context("fork").Pool(workers) if workers > 1 else _Serial() as pool:
+        for i, k, d, s, failed in pool.imap_unordered(_demo_job, jobs, chunksize=8):
+            out["images"][i, k], out["states"][i, k], out["actions"][i, k] = d["images"], d["states"], d["actions"]
+            scene = d["scene"]
+            out["colours"][i, k], out["positions"][i, k] = scene.colours, scene.positions
+            out["target_index"][i, k], out["seeds"][i, k] = scene.target, s
+            failures += failed
+            iterations.append(d["ilqg_iterations"])
+            bar.update()
+    bar.close()
+    out["metadata"] = {
+        "split": split, "seed": seed, "n_tasks": N, "demos_per_task": K,
+        "world": dataclasses.asdict(world_cfg), "expert": dataclasses.asdict(expert_cfg),
+        "failed_attempts": failures, "dropped": 0, "max_attempts": MAX_ATTEMPTS,
+        "expert_success_rate": N * K / (N * K + failures),
+        "ilqg_iterations_median": float(np.median(iterations)),
+        "seconds": round(time.perf_counter() - start, 2), "workers": workers,
+    }
+    return out
+
+
+class _Serial:
+    """Stand-in for a process pool when workers == 1 (easier to debug and profile)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def imap_unordered(self, f, jobs, chunksize=1):
+        return map(f, jobs)
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(prog="python -m oneshot.collect", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", required=True, help="output .npz path (written atomically)")
+    p.add_argument("--split", choices=palette.SPLITS, default="train",
+                   help="colours to draw tasks from: meta-training or held-out (default: train)")
+    p.add_argument("--tasks", type=int, default=36, help="number of tasks (distinct target colours)")
+    p.add_argument("--demos", type=int, default=8, help="demonstrations per task (at least 2)")
+    p.add_argument("--seed", type=int, default=0, help="seed; the same seed gives the same dataset")
+    p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    p.add_argument("--image-size", type=int, default=32, help="image side in pixels (32 or 64)")
+    p.add_argument("--horizon", type=int, default=20, help="time steps per demonstration")
+    args = p.parse_args(argv)
+    try:
+        world_cfg = WorldConfig(image_size=args.image_size, horizon=args.horizon)
+        dataset = collect(args.tasks, args.demos, args.split, args.seed, args.workers, world_cfg)
+    except ValueError as e:
+        p.error(str(e))
+    meta = data.save(dataset, args.out)
+    print(f"wrote {args.out}: {args.tasks} tasks x {args.demos} demos ({args.split} colours) in "
+          f"{meta['seconds']} s; expert success {meta['expert_success_rate']:.3f} "
+          f"({meta['failed_attempts']} failed attempts retried)")
+
+
+if __name__ == "__main__":
+    main()

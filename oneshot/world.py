@@ -1,0 +1,246 @@
+"""The reaching world of paper Section IV: a planar 2-link arm in Pymunk, coloured discs, Pillow images.
+
+A *task* is a target colour (`oneshot.palette`). A *scene* places one target and distractors, each a
+coloured disc, where the arm can reach them; positions change from scene to scene within a task.
+The API follows Gymnasium, which RL users know:
+
+    world = ReachWorld()
+    obs, info = world.reset(seed=0, options={"target_colour": 5})
+    obs, reward, terminated, truncated, info = world.step(np.array([0.1, -0.2]))
+
+Observation: a dict with "image" (H, W, 3) uint8, "joint_angles" (2,) rad, "joint_velocities" (2,)
+rad/s, "end_effector" (2,) m. `observation_state(obs)` stacks the last three into the (6,) state
+vector the policy reads. Action: (2,) joint torques in N m, clipped to the torque bound.
+Reward: minus the end-effector-to-target distance in metres.
+
+Defaults: T = 20 control steps of 0.05 s (a 1 s episode), 32x32 images. 1 s is enough for the expert
+to reach any reachable point and settle with bounded torques; T = 20 keeps the second-order
+meta-gradient cheap (its cost grows linearly with the number of frames). Success (the paper: "within
+0.05 distance of the goal") is judged on the final fifth of the episode, as in MIL's released code
+(last 10 of 50 steps): here the last 4 of 20.
+"""
+from dataclasses import dataclass, field
+
+import numpy as np
+import pymunk
+
+from oneshot import palette, render
+from oneshot.arm import ArmConfig
+from oneshot.palette import PaletteConfig
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    arm: ArmConfig = field(default_factory=ArmConfig)
+    palette: PaletteConfig = field(default_factory=PaletteConfig)
+    split: str = "train"              # which colours scenes are drawn from: "train" or "heldout"
+    horizon: int = 20                 # T, control steps per episode
+    image_size: int = 32              # 32 by default; 64 also works
+    n_objects: int = 3                # one target and two distractors
+    arena_half_width: float = 0.22    # the square arena and image span [-0.22, 0.22]^2 metres
+    object_radius: float = 0.025      # disc radius, metres
+    min_object_radius: float = 0.07   # objects lie at this to max_object_radius from the base, metres
+    max_object_radius: float = 0.19   # (the arm reaches 0.01 to 0.21)
+    success_radius: float = 0.05      # paper: "within 0.05 distance of the goal"
+    min_separation: float = 0.12      # > 2 * success_radius, so success is never ambiguous
+    start_noise: float = 0.0          # std of noise on the start pose, radians
+
+    def __post_init__(self):
+        if self.image_size < 8:
+            raise ValueError(f"image_size must be at least 8 pixels; got {self.image_size}")
+        if self.horizon < 5:
+            raise ValueError(f"horizon must be at least 5 steps (success uses its final fifth); "
+                             f"got {self.horizon}")
+        if self.min_separation <= 2 * self.success_radius:
+            raise ValueError("min_separation must exceed 2 * success_radius, or success is ambiguous")
+        palette.split_colours(self.split, self.palette)   # validates the split name
+
+
+def success_window(horizon):
+    """Number of final steps success is judged on: the final fifth (10 of 50, 4 of 20)."""
+    return max(1, horizon // 5)
+
+
+def is_success(end_effector, target, success_radius=0.05):
+    """Paper Section IV success: min distance over the final fifth of the episode <= 0.05.
+
+    end_effector: (T, 2) positions after each of the T steps, metres; target: (2,) metres.
+    """
+    end_effector = np.asarray(end_effector)
+    window = end_effector[-success_window(len(end_effector)):]
+    return bool(np.min(np.linalg.norm(window - np.asarray(target), axis=-1)) <= success_radius)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One arrangement: colours (n,) palette indices, positions (n, 2) metres, target index."""
+    colours: np.ndarray
+    positions: np.ndarray
+    target: int = 0
+
+    @property
+    def target_colour(self):
+        return int(self.colours[self.target])
+
+    @property
+    def target_position(self):
+        return self.positions[self.target]
+
+
+def sample_positions(n, rng, cfg):
+    """n reachable object positions, pairwise more than cfg.min_separation apart. -> (n, 2) metres."""
+    for _ in range(10000):
+        r = np.sqrt(rng.uniform(cfg.min_object_radius ** 2, cfg.max_object_radius ** 2, n))
+        a = rng.uniform(-np.pi, np.pi, n)
+        p = np.stack([r * np.cos(a), r * np.sin(a)], -1)
+        d = np.linalg.norm(p[:, None] - p[None], axis=-1) + np.eye(n) * 1e9
+        if d.min() > cfg.min_separation:
+            return p
+    raise ValueError(f"could not place {n} objects {cfg.min_separation} m apart; "
+                     f"lower n_objects or min_separation")
+
+
+def sample_scene(target_colour, rng, cfg):
+    """A random scene for the task `target_colour` (a palette index of cfg.split)."""
+    colours = palette.sample_scene_colours(target_colour, cfg.n_objects, cfg.split, rng, cfg.palette)
+    positions = sample_positions(cfg.n_objects, rng, cfg)
+    order = rng.permutation(cfg.n_objects)          # the target is not always object 0
+    return Scene(colours=colours[order], positions=positions, target=int(np.argmin(order)))
+
+
+def observation_state(obs):
+    """The policy's state vector from an observation: (6,) float32 = angles, velocities, end effector."""
+    return np.concatenate([obs["joint_angles"], obs["joint_velocities"],
+                           obs["end_effector"]]).astype(np.float32)
+
+
+class ReachWorld:
+    """The Pymunk reaching world with a Gymnasium-style API. See the module docstring."""
+
+    def __init__(self, config=None):
+        self.config = config or WorldConfig()
+        self._rgb = palette.palette_rgb(self.config.palette)
+        self._space = None
+
+    # --- set-up ------------------------------------------------------------------------------
+    def _build_arm(self, q):
+        """A fresh Pymunk space (no cached solver state, so runs are reproducible) holding the arm."""
+        a = self.config.arm
+        i1, i2 = a.inertias
+        space = pymunk.Space()
+        space.iterations = 30
+        link1, link2 = pymunk.Body(a.m1, i1), pymunk.Body(a.m2, i2)
+        elbow = (a.l1 * np.cos(q[0]), a.l1 * np.sin(q[0]))
+        link1.position = (a.l1 / 2 * np.cos(q[0]), a.l1 / 2 * np.sin(q[0]))
+        link1.angle = q[0]
+        link2.position = (elbow[0] + a.l2 / 2 * np.cos(q[0] + q[1]),
+                          elbow[1] + a.l2 / 2 * np.sin(q[0] + q[1]))
+        link2.angle = q[0] + q[1]
+        shoulder = pymunk.PivotJoint(space.static_body, link1, (0, 0), (-a.l1 / 2, 0))
+        elbow_joint = pymunk.PivotJoint(link1, link2, (a.l1 / 2, 0), (-a.l2 / 2, 0))
+        space.add(link1, link2, shoulder, elbow_joint)
+        return space, link1, link2
+
+    def reset(self, seed=None, options=None):
+        """Start an episode. options: {"scene": Scene} or {"target_colour": palette index}.
+
+        Returns (obs, info); info has "scene", "target_position" and "success" (False).
+        """
+        options = options or {}
+        rng = np.random.default_rng(seed)
+        if "scene" in options:
+            self.scene = options["scene"]
+            self._check_scene(self.scene)
+        else:
+            colour = options.get("target_colour")
+            if colour is None:
+                colour = int(rng.choice(palette.split_colours(self.config.split, self.config.palette)))
+            self.scene = sample_scene(colour, rng, self.config)
+        q0 = np.array(self.config.arm.q0, dtype=float)
+        if self.config.start_noise > 0:
+            q0 = q0 + rng.normal(0, self.config.start_noise, 2)
+        self._space, self._link1, self._link2 = self._build_arm(q0)
+        self.t = 0
+        self.end_effector_history = []
+        return self._observation(), self._info()
+
+    def _check_scene(self, scene):
+        cfg = self.config
+        colours, positions = np.asarray(scene.colours), np.asarray(scene.positions)
+        if colours.shape != (len(colours),) or positions.shape != (len(colours), 2):
+            raise ValueError(f"scene needs colours (n,) and positions (n, 2); "
+                             f"got {colours.shape} and {positions.shape}")
+        if not 0 <= scene.target < len(colours):
+            raise ValueError(f"scene target index {scene.target} is out of range for {len(colours)} objects")
+        if colours.min() < 0 or colours.max() >= cfg.palette.size:
+            raise ValueError(f"scene colours must be palette indices in [0, {cfg.palette.size}); got {colours}")
+
+    # --- state ---------------------------------------------------------------------------------
+    @property
+    def joint_angles(self):
+        return np.array([self._link1.angle, self._link2.angle - self._link1.angle])
+
+    @property
+    def joint_velocities(self):
+        w1, w2 = self._link1.angular_velocity, self._link2.angular_velocity
+        return np.array([w1, w2 - w1])
+
+    @property
+    def state(self):
+        """Arm state x = (q1, q2, qd1, qd2), as in `oneshot.arm`."""
+        return np.concatenate([self.joint_angles, self.joint_velocities])
+
+    def joints(self):
+        """(3, 2) world positions of base, elbow and end effector, metres (from Pymunk's bodies)."""
+        a = self.config.arm
+        elbow = self._link1.local_to_world((a.l1 / 2, 0))
+        tip = self._link2.local_to_world((a.l2 / 2, 0))
+        return np.array([[0.0, 0.0], [elbow.x, elbow.y], [tip.x, tip.y]])
+
+    def render(self):
+        """The current image, (H, W, 3) uint8."""
+        cfg = self.config
+        return render.render(self.joints(), self.scene.positions, self._rgb[self.scene.colours],
+                             arena_half_width=cfg.arena_half_width, size=cfg.image_size,
+                             object_radius=cfg.object_radius)
+
+    def _observation(self):
+        return {"image": self.render(), "joint_angles": self.joint_angles,
+                "joint_velocities": self.joint_velocities, "end_effector": self.joints()[2]}
+
+    def _info(self):
+        return {"scene": self.scene, "target_position": self.scene.target_position,
+                "success": is_success(self.end_effector_history, self.scene.target_position,
+                                      self.config.success_radius)
+                if len(self.end_effector_history) == self.config.horizon else False}
+
+    # --- dynamics ------------------------------------------------------------------------------
+    def step(self, action):
+        """Apply joint torques for one control step. action: (2,) N m (clipped to the bound).
+
+        Returns (obs, reward, terminated, truncated, info); truncated is True after T steps, and
+        info["success"] then tells whether the episode met the success criterion.
+        """
+        if self._space is None:
+            raise RuntimeError("call reset() before step()")
+        if self.t >= self.config.horizon:
+            raise RuntimeError(f"the episode ended after {self.config.horizon} steps; call reset()")
+        action = np.asarray(action, dtype=float)
+        if action.shape != (2,):
+            raise ValueError(f"action must be (2,) joint torques in N m; got shape {action.shape}")
+        if not np.all(np.isfinite(action)):
+            raise ValueError(f"action contains NaN or inf: {action}")
+        a = self.config.arm
+        u = np.clip(action, -a.max_torque, a.max_torque)
+        hsub = a.dt / a.substeps
+        for _ in range(a.substeps):
+            # Torques reset after every Pymunk step, so joint torques and damping are re-applied.
+            tau = u - a.damping * self.joint_velocities
+            self._link1.torque = float(tau[0] - tau[1])
+            self._link2.torque = float(tau[1])
+            self._space.step(hsub)
+        self.t += 1
+        obs = self._observation()
+        self.end_effector_history.append(obs["end_effector"])
+        reward = -float(np.linalg.norm(obs["end_effector"] - self.scene.target_position))
+        return obs, reward, False, self.t >= self.config.horizon, self._info()

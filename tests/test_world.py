@@ -1,0 +1,139 @@
+"""The reaching world: scenes, rendering, determinism, success, and errors (oneshot.world)."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from oneshot import palette
+from oneshot.render import world_to_pixels
+from oneshot.world import ReachWorld, Scene, WorldConfig, is_success, observation_state, sample_scene
+
+
+def test_a_disc_of_colour_c_appears_where_the_scene_says_in_colour_c():
+    for size in (32, 64):
+        world = ReachWorld(WorldConfig(image_size=size))
+        rgb = palette.palette_rgb()
+        for seed in range(5):
+            obs, info = world.reset(seed=seed)
+            scene = info["scene"]
+            for pos, colour in zip(scene.positions, scene.colours):
+                px, py = world_to_pixels(pos, world.config.arena_half_width, size)
+                pixel = obs["image"][int(py), int(px)].astype(int)
+                assert np.abs(pixel - rgb[colour]).max() <= 40, (size, pos, pixel, rgb[colour])
+            # and nowhere else: a pixel far from every object and the arm is background
+            assert obs["image"][0, 0].tolist() == [0, 0, 0]
+
+
+def test_image_pixels_of_each_colour_sit_at_its_disc():
+    """Independent check through the image: the centroid of pixels near colour c is the disc centre."""
+    world = ReachWorld()
+    obs, info = world.reset(seed=3)
+    image = obs["image"].astype(int)
+    for pos, colour in zip(info["scene"].positions, info["scene"].colours):
+        mask = np.abs(image - palette.palette_rgb()[colour]).max(-1) < 60
+        ys, xs = np.nonzero(mask)
+        centre = world_to_pixels(pos, world.config.arena_half_width, 32)
+        assert np.hypot(xs.mean() + 0.5 - centre[0], ys.mean() + 0.5 - centre[1]) < 1.0
+
+
+def test_same_seed_same_trajectory_bit_for_bit():
+    actions = np.random.default_rng(0).uniform(-0.5, 0.5, (20, 2))
+
+    def run():
+        world = ReachWorld()
+        obs, _ = world.reset(seed=42, options={"target_colour": 5})
+        frames = [obs["image"]]
+        states = [observation_state(obs)]
+        for a in actions:
+            obs, *_ = world.step(a)
+            frames.append(obs["image"])
+            states.append(observation_state(obs))
+        return np.stack(frames), np.stack(states)
+
+    (f1, s1), (f2, s2) = run(), run()
+    assert np.array_equal(f1, f2) and np.array_equal(s1, s2)
+    world = ReachWorld()
+    _, i1 = world.reset(seed=42, options={"target_colour": 5})
+    _, i2 = world.reset(seed=43, options={"target_colour": 5})
+    assert not np.array_equal(i1["scene"].positions, i2["scene"].positions)
+
+
+def test_scenes_are_reachable_separated_and_distinguishable():
+    cfg = WorldConfig()
+    rng = np.random.default_rng(0)
+    train = set(palette.split_colours("train").tolist())
+    for _ in range(200):
+        colour = int(rng.choice(sorted(train)))
+        scene = sample_scene(colour, rng, cfg)
+        assert scene.target_colour == colour
+        r = np.linalg.norm(scene.positions, axis=1)
+        assert np.all((r >= cfg.min_object_radius) & (r <= cfg.max_object_radius))
+        d = np.linalg.norm(scene.positions[:, None] - scene.positions[None], axis=-1)
+        assert d[np.triu_indices(3, 1)].min() > 2 * cfg.success_radius
+        hue = palette.hue_distance_deg(scene.colours[:, None], scene.colours[None])
+        assert hue[np.triu_indices(3, 1)].min() >= cfg.palette.min_separation_deg
+        assert set(scene.colours.tolist()) <= train          # no held-out colour, not even a distractor
+
+
+def test_palette_splits_never_overlap():
+    train, held = palette.split_colours("train"), palette.split_colours("heldout")
+    assert not set(train) & set(held)
+    assert len(train) + len(held) == palette.PaletteConfig().size
+    assert len(np.unique(palette.palette_rgb(), axis=0)) == palette.PaletteConfig().size
+
+
+def test_success_criterion_uses_the_final_fifth():
+    target = np.array([0.1, 0.0])
+    far = np.tile([0.0, 0.15], (20, 1))
+    near_late = far.copy()
+    near_late[-2] = [0.1, 0.049]                   # within 0.05 during the last 4 of 20 steps
+    near_early = far.copy()
+    near_early[-5] = [0.1, 0.0]                    # only before the final fifth
+    assert is_success(near_late, target)
+    assert not is_success(near_early, target)
+    assert not is_success(far, target)
+    boundary = far.copy()
+    boundary[-1] = [0.1, 0.05]
+    assert is_success(boundary, target)            # "within 0.05": the boundary counts
+
+
+def test_step_api_reward_truncation_and_success_flag():
+    world = ReachWorld()
+    obs, info = world.reset(seed=0)
+    assert set(obs) == {"image", "joint_angles", "joint_velocities", "end_effector"}
+    assert obs["image"].shape == (32, 32, 3) and obs["image"].dtype == np.uint8
+    for t in range(20):
+        obs, reward, terminated, truncated, info = world.step(np.zeros(2))
+        assert reward == pytest.approx(-np.linalg.norm(obs["end_effector"] - info["target_position"]))
+        assert not terminated and truncated == (t == 19)
+    assert info["success"] is False                  # a motionless arm does not reach
+    with pytest.raises(RuntimeError, match="call reset"):
+        world.step(np.zeros(2))
+
+
+def test_bad_input_is_rejected_with_a_message_naming_the_fix():
+    world = ReachWorld()
+    with pytest.raises(RuntimeError, match="reset"):
+        world.step(np.zeros(2))
+    world.reset(seed=0)
+    with pytest.raises(ValueError, match=r"\(2,\) joint torques"):
+        world.step(np.zeros(3))
+    with pytest.raises(ValueError, match="NaN"):
+        world.step(np.array([np.nan, 0.0]))
+    held = int(palette.split_colours("heldout")[0])
+    with pytest.raises(ValueError, match="not a 'train' colour"):
+        world.reset(seed=0, options={"target_colour": held})
+    with pytest.raises(ValueError, match="unknown colour split"):
+        WorldConfig(split="test")
+    with pytest.raises(ValueError, match="out of range"):
+        world.reset(options={"scene": Scene(colours=np.array([1, 2]), positions=np.zeros((2, 2)), target=2)})
+    with pytest.raises(ValueError, match="min_separation"):
+        WorldConfig(min_separation=0.09)
+
+
+def test_heldout_world_uses_only_heldout_colours():
+    world = ReachWorld(dataclasses.replace(WorldConfig(), split="heldout"))
+    held = set(palette.split_colours("heldout").tolist())
+    for seed in range(20):
+        _, info = world.reset(seed=seed)
+        assert set(info["scene"].colours.tolist()) <= held
