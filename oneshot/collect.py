@@ -116,10 +116,15 @@ def main(argv=None):
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
     p.add_argument("--image-size", type=int, default=32, help="image side in pixels (32 or 64)")
     p.add_argument("--horizon", type=int, default=20, help="time steps per demonstration")
+    p.add_argument("--noise", type=float, default=0.0,
+                   help="DART noise: std (N m) of torque noise executed but not recorded (default 0)")
     args = p.parse_args(argv)
     try:
         world_cfg = WorldConfig(image_size=args.image_size, horizon=args.horizon)
-        dataset = collect(args.tasks, args.demos, args.split, args.seed, args.workers, world_cfg)
+        if args.noise < 0:
+            raise ValueError(f"--noise is a standard deviation in N m, so >= 0; got {args.noise}")
+        dataset = collect(args.tasks, args.demos, args.split, args.seed, args.workers, world_cfg,
+                          expert.ExpertConfig(action_noise=args.noise))
     except ValueError as e:
         p.error(str(e))
     meta = data.save(dataset, args.out)

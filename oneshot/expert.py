@@ -33,6 +33,10 @@ class ExpertConfig:
     # world's 10): the same equations on a coarser grid halve the cost of a plan, and the feedback
     # gains absorb the small difference (`python -m oneshot.benchmark expert`: still 100% success).
     model_substeps: int = 5
+    # DART (Laskey et al., 2017): execute the expert's torque plus Gaussian noise of this std (N m)
+    # but record the expert's command, so the data shows how the expert corrects the deviations a
+    # learned policy will make. 0 records the noiseless expert.
+    action_noise: float = 0.0
     ilqg: ILQGConfig = field(default_factory=ILQGConfig)
 
 
@@ -108,21 +112,25 @@ def demonstrate(world, seed=None, options=None, cfg=ExpertConfig()):
     """Record one expert demonstration in `world` (a ReachWorld), reset with seed and options.
 
     Returns a dict: images (T, H, W, 3) uint8, states (T, 6) float32, actions (T, 2) float32 (the
-    torques applied at each observed frame), end_effector (T, 2) positions after each step, scene,
-    success (bool, the paper's criterion), ilqg_iterations.
+    expert's torque command at each observed frame), applied (T, 2) float32 (the torques Pymunk got:
+    the commands, plus noise if cfg.action_noise > 0), end_effector (T, 2) positions after each
+    step, scene, success (bool, the paper's criterion), ilqg_iterations.
     """
     obs, info = world.reset(seed=seed, options=options)
-    T = world.config.horizon
+    T, lim = world.config.horizon, world.config.arm.max_torque
     result = plan(world.state, info["target_position"], world.config.arm, T, cfg)
-    images, states, actions, ee = [], [], [], []
+    noise = np.random.default_rng([seed if seed is not None else 0, 7]).normal(0, cfg.action_noise, (T, 2))
+    images, states, actions, applied, ee = [], [], [], [], []
     for t in range(T):
-        # Rounded to float32 before it is applied, so the stored action is exactly what Pymunk got.
+        # Rounded to float32 before it is applied, so the stored torque is exactly what Pymunk got.
         u = feedback_torque(result, t, world.state, world.config.arm).astype(np.float32)
+        u_applied = np.clip(u + noise[t], -lim, lim).astype(np.float32) if cfg.action_noise else u
         images.append(obs["image"])
         states.append(observation_state(obs))
         actions.append(u)
-        obs, _, _, _, info = world.step(u)
+        applied.append(u_applied)
+        obs, _, _, _, info = world.step(u_applied)
         ee.append(obs["end_effector"])
-    return {"images": np.stack(images), "states": np.stack(states),
-            "actions": np.asarray(actions, np.float32), "end_effector": np.stack(ee),
-            "scene": info["scene"], "success": info["success"], "ilqg_iterations": result.iterations}
+    return {"images": np.stack(images), "states": np.stack(states), "actions": np.stack(actions),
+            "applied": np.stack(applied), "end_effector": np.stack(ee), "scene": info["scene"],
+            "success": info["success"], "ilqg_iterations": result.iterations}

@@ -92,3 +92,21 @@ def test_a_demonstration_is_what_the_simulator_did():
         assert np.array_equal(observation_state(obs), demo["states"][t])
         obs, *_ = world.step(u.astype(float))
     assert np.allclose(obs["end_effector"], demo["end_effector"][-1], atol=1e-6)
+
+
+def test_dart_noise_is_executed_but_not_recorded_and_the_expert_still_succeeds():
+    """With action noise the labels are the expert's commands; replaying the *applied* torques
+    reproduces the recorded frames, and the commands differ from them by the noise."""
+    world = ReachWorld()
+    cfg = expert.ExpertConfig(action_noise=0.1)
+    for seed in range(5):
+        demo = expert.demonstrate(world, seed=seed, cfg=cfg)
+        assert demo["success"]
+        gap = np.abs(demo["applied"] - demo["actions"])
+        assert 0.03 < gap.mean() < 0.15                           # about the noise's mean |N(0, 0.1)| = 0.08
+    obs, _ = world.reset(seed=4)
+    for t, u in enumerate(demo["applied"]):
+        assert np.array_equal(obs["image"], demo["images"][t])
+        obs, *_ = world.step(u.astype(float))
+    again = expert.demonstrate(world, seed=4, cfg=cfg)
+    assert np.array_equal(again["actions"], demo["actions"])       # the noise is seeded

@@ -1,0 +1,90 @@
+"""One-shot imitation (paper Section III): behavioural cloning as MAML's task loss, and meta-test.
+
+Meta-training (Section III-A): a task is one target colour; its data are demonstrations. For each
+task of a meta-batch, adapt on one demo with eq. (1) and score the adapted policy with eq. (2) on a
+second demo of the same task. Meta-test (Section III-B): given ONE demo of a new colour, adapt, then
+run the adapted policy in the world, in a new scene (new positions) with the same target colour.
+
+Units: the network sees images in [0, 1], states divided by STATE_SCALE and predicts torques divided
+by the torque bound, so every input and output is of order one.
+"""
+import autograd.numpy as anp
+import numpy as np
+
+from oneshot import maml
+from oneshot.network import forward, images_to_float
+from oneshot.world import is_success, observation_state
+
+# joint angles (rad), joint velocities (rad/s), end effector (m) -> order one
+STATE_SCALE = np.array([np.pi, np.pi, 10.0, 10.0, 0.2, 0.2], np.float32)
+
+
+def prepare_demos(images, states, actions, max_torque):
+    """Dataset arrays -> network units. images (..., T, H, W, 3) uint8, states (..., T, 6),
+    actions (..., T, 2) N m -> (images float32 in [0, 1], states / STATE_SCALE, actions / max_torque)."""
+    for name, a, last in (("states", states, 6), ("actions", actions, 2)):
+        if a.shape[-1] != last or a.shape[:-1] != images.shape[:-3]:
+            raise ValueError(f"{name} must be {images.shape[:-3] + (last,)} to match images "
+                             f"{images.shape}; got {a.shape}")
+    return (images_to_float(images), (states / STATE_SCALE).astype(np.float32),
+            (actions / np.float32(max_torque)).astype(np.float32))
+
+
+def imitation_loss(params, demo):
+    """Paper eq. (2): the behavioural-cloning loss, summed over the demo's frames.
+
+        L(theta, d) = sum_t || pi_theta(o_t) - u_t ||^2
+
+    demo: (images (T, H, W, 3) float32, states (T, 6), actions (T, 2)), in network units.
+    With a leading task axis on the demo and the params (MAML's batched meta-objective), the sum also
+    runs over tasks, which gives each task's own gradient with respect to its own parameter copy.
+    """
+    images, states, actions = demo
+    residual = forward(params, images, states) - actions
+    return anp.sum(residual * residual)
+
+
+def sample_meta_batch(demos, rng, meta_batch=5):
+    """A meta-batch: `meta_batch` tasks, and for each two different demos (adapt, evaluate).
+
+    demos: (images (N, K, T, H, W, 3), states (N, K, T, 6), actions (N, K, T, 2)) in network units.
+    Returns (adapt, evaluate), each a tuple of arrays with a leading task axis of size meta_batch.
+    """
+    n, k = demos[0].shape[:2]
+    tasks = rng.choice(n, meta_batch, replace=meta_batch > n)
+    pairs = np.array([rng.choice(k, 2, replace=False) for _ in tasks])
+    adapt = tuple(a[tasks, pairs[:, 0]] for a in demos)
+    evaluate = tuple(a[tasks, pairs[:, 1]] for a in demos)
+    return adapt, evaluate
+
+
+def adapt(params, demo, alpha=0.001, steps=3):
+    """One-shot adaptation (eq. 1) to a single demo (images, states, actions) in network units."""
+    return maml.inner_update(params, demo, imitation_loss, alpha, steps)
+
+
+def act(params, obs, max_torque):
+    """The policy's torques (2,) N m for one observation of the world."""
+    image = images_to_float(obs["image"])[None]
+    state = (observation_state(obs) / STATE_SCALE)[None]
+    return np.asarray(forward(params, image, state))[0].astype(np.float64) * max_torque
+
+
+def rollout(params, world, seed, target_colour):
+    """Run the policy for one episode in a new scene of `target_colour`.
+
+    Returns {"success": bool, "images": (T, H, W, 3) uint8, "end_effector": (T, 2), "scene": Scene}.
+    """
+    obs, info = world.reset(seed=seed, options={"target_colour": int(target_colour)})
+    images, ee = [], []
+    for _ in range(world.config.horizon):
+        images.append(obs["image"])
+        obs, _, _, _, info = world.step(act(params, obs, world.config.arm.max_torque))
+        ee.append(obs["end_effector"])
+    return {"success": is_success(ee, info["target_position"], world.config.success_radius),
+            "images": np.stack(images), "end_effector": np.stack(ee), "scene": info["scene"]}
+
+
+def one_shot_trial(params, demo, world, seed, target_colour, alpha=0.001, steps=3):
+    """Meta-test (Section III-B): adapt on ONE demo (network units), then act in a new scene."""
+    return rollout(adapt(params, demo, alpha, steps), world, seed, target_colour)

@@ -1,0 +1,371 @@
+"""Meta-training (paper Sections II and III): `python -m oneshot.train --help`.
+
+    python -m oneshot.train --profile default --run runs/default      # fast profile, 2 CPU cores
+    python -m oneshot.train --run runs/default --resume                # continue a stopped run exactly
+
+A run folder holds `checkpoint.npz` (parameters, Adam state, iteration, random state, config; written
+atomically every `checkpoint_every` iterations and at the end) and `log.jsonl` (one JSON object per
+line: meta-loss every `log_every` iterations, held-out one-shot success every `eval_every`).
+Missing datasets are collected first with `python -m oneshot.collect` settings from the profile.
+"""
+import argparse
+import ctypes
+import dataclasses
+import json
+import multiprocessing
+import os
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from oneshot import collect, data, imitation, maml, network, optim
+from oneshot.evaluate import one_shot_success
+from oneshot.expert import ExpertConfig
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything a run depends on. Defaults are the fast profile; PROFILES["paper"] is MIL's."""
+    train_data: str = "data/train.npz"       # collected if missing: 36 colours x `train_demos`
+    heldout_data: str = "data/heldout.npz"   # collected if missing: 12 colours x 10 demos
+    train_demos: int = 24                    # demos per meta-training colour when collecting
+    demo_noise: float = 0.1                  # DART torque noise (N m) when collecting (docs/imitation.md)
+    iterations: int = 2000                   # meta-iterations (one Adam step each)
+    meta_batch: int = 5                      # tasks per meta-iteration (MIL: 5)
+    inner_steps: int = 3                     # gradient steps of eq. (1) (MIL reaching: 3)
+    alpha: float = 0.001                     # inner step size (MIL reaching: 0.001)
+    lr: float = 1e-3                         # Adam step size (Adam's default)
+    clip: float = 10.0                       # meta-gradient clipped to [-clip, clip] (MIL: 10)
+    first_order: bool = False                # first-order MAML approximation, for comparison
+    bias_transform: int = 0                  # size of the bias-transformation vector (0: off)
+    seed: int = 0                            # parameters and meta-batch sampling
+    log_every: int = 10
+    eval_every: int = 500                    # held-out one-shot success during training
+    eval_trials: int = 2                     # trials per held-out colour in those evaluations
+    checkpoint_every: int = 100
+    shards: int = 2                          # the meta-batch is split in this many parts, computed by
+                                             # up to `shards` processes (results depend on shards only)
+
+
+PROFILES = {
+    "default": TrainConfig(),
+    "bias": TrainConfig(bias_transform=10),
+    "paper": TrainConfig(iterations=30000, eval_every=1000),
+    "tiny": TrainConfig(train_data="data/tiny_train.npz", heldout_data="data/tiny_heldout.npz",
+                        train_demos=3, iterations=20, meta_batch=2, log_every=1, eval_every=0,
+                        checkpoint_every=5, shards=1),
+}
+
+
+class TrainingDiverged(RuntimeError):
+    """The meta-loss or meta-gradient became NaN or inf."""
+
+
+# --- checkpoints -----------------------------------------------------------------------------------
+
+def save_checkpoint(path, params, adam_state, iteration, rng, cfg, net_cfg):
+    """Write a checkpoint atomically (temporary file + rename): never half a file on disk."""
+    arrays = {f"params/{k}": v for k, v in params.items()}
+    arrays.update(optim.state_to_arrays(adam_state))
+    meta = {"iteration": iteration, "rng": rng.bit_generator.state, "config": dataclasses.asdict(cfg),
+            "network": dataclasses.asdict(net_cfg), "format_version": 1}
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=".npz")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, meta=np.array(json.dumps(meta)), **arrays)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def load_checkpoint(path):
+    """Read a checkpoint. Returns {"params", "adam", "iteration", "rng", "config", "network"}."""
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"no checkpoint at {path!r}; train one with `python -m oneshot.train`")
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            arrays = {k: f[k] for k in f.files}
+        meta = json.loads(str(arrays.pop("meta")))
+    except Exception as e:                   # zip, JSON or key errors: all mean a damaged file
+        raise ValueError(f"{path!r} is not a readable oneshot checkpoint ({e}); "
+                         f"re-train or restore it") from e
+    params = {k[len("params/"):]: v for k, v in arrays.items() if k.startswith("params/")}
+    for k, v in params.items():
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"{path!r}: parameter {k!r} contains NaN or inf; use an earlier checkpoint")
+    rng = np.random.default_rng()
+    rng.bit_generator.state = meta["rng"]
+    cfg = meta["config"]
+    return {"params": params, "adam": optim.state_from_arrays(arrays), "iteration": meta["iteration"],
+            "rng": rng, "config": TrainConfig(**cfg), "network": network.NetworkConfig(**{
+                k: tuple(v) if isinstance(v, list) else v for k, v in meta["network"].items()})}
+
+
+# --- data ------------------------------------------------------------------------------------------
+
+def ensure_datasets(cfg, progress=True):
+    """Load the meta-training and held-out datasets, collecting any that is missing."""
+    out = []
+    for path, split, tasks, demos, seed in ((cfg.train_data, "train", 36, cfg.train_demos, 0),
+                                            (cfg.heldout_data, "heldout", 12, 10, 1)):
+        if cfg.train_demos < 5 and split == "heldout":
+            demos = 2                        # the tiny profile: tiny datasets
+        if not os.path.exists(path):
+            print(f"{path} is missing: collecting it (python -m oneshot.collect --out {path} --split "
+                  f"{split} --tasks {tasks} --demos {demos} --seed {seed} --noise {cfg.demo_noise})",
+                  file=sys.stderr)
+            data.save(collect.collect(tasks, demos, split, seed, progress=progress,
+                                      expert_cfg=ExpertConfig(action_noise=cfg.demo_noise)), path)
+        out.append(data.load(path))
+    return out
+
+
+def _tune_malloc():
+    """Keep freed memory in the process instead of returning it to the OS after every array.
+
+    The network allocates and frees multi-megabyte arrays thousands of times per meta-iteration;
+    glibc hands each back to the OS and page-faults it in again (~1000 faults per forward pass).
+    Raising the mmap and trim thresholds stops that (measured: `python -m oneshot.benchmark maml`).
+    A no-op where glibc is not the C library.
+    """
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        libc.mallopt(-1, 1 << 30)        # M_TRIM_THRESHOLD
+        libc.mallopt(-3, 1 << 30)        # M_MMAP_THRESHOLD
+    except (OSError, AttributeError):
+        pass
+
+
+# --- the meta-gradient, in shards ----------------------------------------------------------------
+
+_SHARD = {}     # set before the worker processes fork, so they inherit the data instead of copying it
+
+
+def _shard_gradient(job):
+    """Mean meta-loss and meta-gradient over one shard of the meta-batch (runs in a worker)."""
+    params, adapt, evaluate = job
+    cfg = _SHARD["cfg"]
+    return maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss,
+                                      cfg.alpha, cfg.inner_steps, cfg.first_order)
+
+
+def shard_meta_batch(adapt, evaluate, shards):
+    """Split a meta-batch (tuples of arrays with a leading task axis) into `shards` contiguous parts."""
+    bounds = np.linspace(0, len(adapt[0]), shards + 1).astype(int)
+    return [(tuple(a[i:j] for a in adapt), tuple(e[i:j] for e in evaluate), j - i)
+            for i, j in zip(bounds[:-1], bounds[1:]) if j > i]
+
+
+def sharded_meta_gradient(params, adapt, evaluate, cfg, pool=None):
+    """The meta-objective (mean over tasks) and its gradient, computed shard by shard.
+
+    One process runs autograd's Python at about one core; two processes on two shards of the
+    meta-batch use both (measured: `python -m oneshot.benchmark maml`). The shards' means are
+    combined in a fixed order weighted by their sizes, so the result depends on cfg.shards only,
+    not on whether a pool is used.
+    """
+    parts = shard_meta_batch(adapt, evaluate, cfg.shards)
+    jobs = [(params, a, e) for a, e, _ in parts]
+    _SHARD["cfg"] = cfg
+    results = pool.map(_shard_gradient, jobs) if pool is not None else [_shard_gradient(j) for j in jobs]
+    B = sum(n for _, _, n in parts)
+    loss = sum(v * (n / B) for (v, _), (_, _, n) in zip(results, parts))
+    grads = {k: sum(g[k] * np.float32(n / B) for (_, g), (_, _, n) in zip(results, parts)) for k in params}
+    return loss, grads
+
+
+def _blas_threads(n):
+    """Set OpenBLAS's thread count in this process, where NumPy's bundled OpenBLAS allows it.
+
+    Each shard worker keeps to one BLAS thread: two workers with two spinning BLAS threads each
+    on two cores were 5x slower than one process (`python -m oneshot.benchmark maml`).
+    """
+    import glob
+    folder = os.path.join(os.path.dirname(np.__file__), os.pardir, "numpy.libs")
+    for path in glob.glob(os.path.join(folder, "*openblas*")):
+        try:
+            lib = ctypes.CDLL(path)
+            for name in ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
+                         "openblas_set_num_threads"):
+                if hasattr(lib, name):
+                    getattr(lib, name)(n)
+                    return True
+        except OSError:
+            pass
+    return False
+
+
+def make_pool(cfg):
+    """Worker processes for the shards (None when one process is enough)."""
+    if cfg.shards < 2 or (os.cpu_count() or 1) < 2:
+        return None
+    _SHARD["cfg"] = cfg
+    return multiprocessing.get_context("fork").Pool(min(cfg.shards, os.cpu_count()),
+                                                    initializer=_blas_threads, initargs=(1,))
+
+
+# --- training --------------------------------------------------------------------------------------
+
+def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
+    """Meta-train a policy with MAML (Section II) on behavioural cloning (Section III).
+
+    run_dir: folder for checkpoint.npz and log.jsonl. resume: continue from its checkpoint (the
+    rest of the run is then identical to an uninterrupted one). stop_after: leave after this many
+    iterations of this call (to test resuming). Returns the final parameters.
+    """
+    ckpt_path, log_path = os.path.join(run_dir, "checkpoint.npz"), os.path.join(run_dir, "log.jsonl")
+    # 1. Data: both splits, in network units (images in [0, 1], states and torques of order one).
+    train_set, heldout_set = ensure_datasets(cfg, progress)
+    max_torque = train_set["metadata"]["world"]["arm"]["max_torque"]
+    demos = imitation.prepare_demos(train_set["images"], train_set["states"], train_set["actions"], max_torque)
+    image_size = train_set["images"].shape[-2]
+
+    # 2. Parameters, optimiser and random state: fresh, or exactly as the checkpoint left them.
+    if resume:
+        ckpt = load_checkpoint(ckpt_path)
+        if ckpt["config"] != cfg:
+            raise ValueError(f"{ckpt_path!r} was trained with a different config; resume with the same "
+                             f"profile and options, or start a new run folder")
+        params, adam, start, rng, net_cfg = (ckpt["params"], ckpt["adam"], ckpt["iteration"],
+                                             ckpt["rng"], ckpt["network"])
+        _truncate_log(log_path, start)
+    else:
+        if os.path.exists(ckpt_path):
+            raise FileExistsError(f"{run_dir!r} already holds a run; use --resume, or another --run folder")
+        rng = np.random.default_rng(cfg.seed)
+        net_cfg = network.NetworkConfig(image_size=image_size, bias_transform=cfg.bias_transform)
+        params = network.init_params(net_cfg, rng)
+        adam, start = optim.adam_init(params), 0
+        os.makedirs(run_dir, exist_ok=True)
+        open(log_path, "w").close()
+    last_good = start
+
+    # 3. Meta-training loop: sample tasks, adapt (eq. 1), score (eq. 2), meta-gradient, clip, Adam.
+    end = cfg.iterations if stop_after is None else min(cfg.iterations, start + stop_after)
+    bar = tqdm(range(start, end), initial=start, total=cfg.iterations, desc="meta-training",
+               disable=not progress)
+    t0 = time.perf_counter()
+    pool = make_pool(cfg)
+    try:
+        with open(log_path, "a") as log:
+            for it in bar:
+                adapt_demos, eval_demos = imitation.sample_meta_batch(demos, rng, cfg.meta_batch)
+                loss, grads = sharded_meta_gradient(params, adapt_demos, eval_demos, cfg, pool)
+                bad = [k for k, g in grads.items() if not np.all(np.isfinite(g))]
+                if not np.isfinite(loss) or bad:
+                    raise TrainingDiverged(
+                        f"the meta-loss became {float(loss)} at iteration {it + 1}"
+                        f"{' (non-finite gradient of ' + ', '.join(bad) + ')' if bad else ''}; the last good "
+                        f"checkpoint ({ckpt_path}, iteration {last_good}) is kept. Lower --lr or --alpha "
+                        f"and start a new run from scratch, or --resume to retry from it.")
+                params, adam = optim.adam_step(params, maml.clip_gradients(grads, cfg.clip), adam, cfg.lr)
+                done = it + 1
+                if done % cfg.log_every == 0:
+                    _log(log, {"iteration": done, "meta_loss": float(loss),
+                               "seconds": round(time.perf_counter() - t0, 2)})
+                    bar.set_postfix(meta_loss=f"{float(loss):.3f}")
+                if cfg.eval_every and done % cfg.eval_every == 0:
+                    r = one_shot_success(params, heldout_set, cfg.eval_trials, cfg.alpha, cfg.inner_steps,
+                                         seed=done, progress=False)
+                    _log(log, {"iteration": done, "heldout_success": r["rate"], "trials": r["trials"]})
+                    bar.set_postfix(meta_loss=f"{float(loss):.3f}", heldout=f"{r['rate']:.2f}")
+                if done % cfg.checkpoint_every == 0 or done == end:
+                    log.flush()
+                    save_checkpoint(ckpt_path, params, adam, done, rng, cfg, net_cfg)
+                    last_good = done
+    finally:
+        if pool is not None:
+            pool.terminate()
+        bar.close()
+    return params
+
+
+def _log(f, record):
+    f.write(json.dumps(record) + "\n")
+
+
+def _truncate_log(path, iteration):
+    """Drop log lines past the checkpoint's iteration (a killed run wrote some before dying)."""
+    if not os.path.exists(path):
+        return
+    with open(path) as f:
+        keep = [line for line in f if line.strip() and json.loads(line)["iteration"] <= iteration]
+    with open(path + ".tmp", "w") as f:
+        f.writelines(keep)
+    os.replace(path + ".tmp", path)
+
+
+# --- benchmark ---------------------------------------------------------------------------------------
+
+def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, **overrides):
+    """Median seconds per second-order meta-iteration on synthetic data, and GFLOP/s.
+
+    FLOPs are estimated as 3 (3 s + 1) forward passes per task for s inner steps: each inner step
+    records a forward and a backward pass (~3 forward passes), the outer loss one more, and the
+    meta-gradient's backward pass costs about twice the recorded forward graph.
+    """
+    _tune_malloc()
+    cfg = dataclasses.replace(PROFILES[profile], **overrides)
+    rng = np.random.default_rng(0)
+    net_cfg = network.NetworkConfig(image_size=image_size, bias_transform=cfg.bias_transform)
+    params = network.init_params(net_cfg, rng)
+    B = cfg.meta_batch
+
+    def demos():
+        return (rng.random((B, T, image_size, image_size, 3), dtype=np.float32),
+                rng.standard_normal((B, T, 6), dtype=np.float32),
+                rng.standard_normal((B, T, 2), dtype=np.float32))
+
+    times, pool = [], make_pool(cfg)
+    try:
+        for _ in range(iterations + 2):
+            a, e = demos(), demos()
+            t = time.perf_counter()
+            sharded_meta_gradient(params, a, e, cfg, pool)
+            times.append(time.perf_counter() - t)
+    finally:
+        if pool is not None:
+            pool.terminate()
+    s = float(np.median(times[2:]))
+    flops = B * 3 * (3 * cfg.inner_steps + 1) * network.count_flops(net_cfg, T)
+    return {"profile": profile, "meta_batch": B, "inner_steps": cfg.inner_steps, "T": T,
+            "image_size": image_size, "first_order": cfg.first_order, "shards": cfg.shards,
+            "seconds_per_iteration": round(s, 4),
+            "gflop_per_iteration": round(flops / 1e9, 2), "gflop_per_second": round(flops / 1e9 / s, 1)}
+
+
+def main(argv=None):
+    p = argparse.ArgumentParser(prog="python -m oneshot.train", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--profile", choices=sorted(PROFILES), default="default",
+                   help="named configuration (default: the fast profile; 'paper': MIL's iteration count)")
+    p.add_argument("--run", default=None, help="run folder (default: runs/<profile>)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --run from its checkpoint")
+    for field in dataclasses.fields(TrainConfig):
+        kind = {bool: lambda s: s.lower() in ("1", "true", "yes")}.get(field.type, field.type)
+        p.add_argument("--" + field.name.replace("_", "-"), type=kind, default=None,
+                       help=f"override the profile's {field.name}")
+    args = p.parse_args(argv)
+    overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainConfig)
+                 if getattr(args, f.name) is not None}
+    cfg = dataclasses.replace(PROFILES[args.profile], **overrides)
+    run = args.run or os.path.join("runs", args.profile)
+    _tune_malloc()
+    t0 = time.perf_counter()
+    try:
+        train(cfg, run, resume=args.resume)
+    except (TrainingDiverged, FileExistsError, ValueError, FileNotFoundError) as e:
+        sys.exit(f"error: {e}")
+    print(f"trained {cfg.iterations} meta-iterations in {time.perf_counter() - t0:.0f} s; "
+          f"checkpoint: {os.path.join(run, 'checkpoint.npz')}")
+
+
+if __name__ == "__main__":
+    main()

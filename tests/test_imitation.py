@@ -1,0 +1,114 @@
+"""Section III on the real network: eq. (2), the batched meta-objective, and second-order MAML,
+against independent references (per-task loops and finite differences)."""
+import autograd.numpy as anp
+import numpy as np
+import pytest
+from autograd import grad
+
+from oneshot import imitation, maml, network
+
+CFG = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5, 5))
+
+
+def _demos(rng, B=None, T=3, dtype=np.float64):
+    lead = (T,) if B is None else (B, T)
+    return (rng.random(lead + (8, 8, 3)).astype(dtype), rng.normal(size=lead + (6,)).astype(dtype),
+            rng.normal(size=lead + (2,)).astype(dtype))
+
+
+def test_imitation_loss_is_the_summed_squared_error_frame_by_frame(rng):
+    params = network.init_params(CFG, rng, dtype=np.float64)
+    images, states, actions = _demos(rng)
+    expected = sum(np.sum((network.predict(params, images[t:t + 1], states[t:t + 1])[0] - actions[t]) ** 2)
+                   for t in range(3))
+    assert imitation.imitation_loss(params, (images, states, actions)) == pytest.approx(expected, rel=1e-12)
+
+
+def test_batched_meta_objective_equals_the_per_task_loop(rng):
+    params = network.init_params(CFG, rng, dtype=np.float64)
+    adapt, evaluate = _demos(rng, B=3), _demos(rng, B=3)
+    tasks = [(tuple(a[b] for a in adapt), tuple(e[b] for e in evaluate)) for b in range(3)]
+    for first_order in (False, True):
+        v1, g1 = maml.meta_gradient(params, tasks, imitation.imitation_loss, 0.01, 2, first_order)
+        v2, g2 = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.01, 2, first_order)
+        assert v2 == pytest.approx(v1, rel=1e-10)
+        for k in params:
+            np.testing.assert_allclose(g2[k], g1[k], rtol=1e-8, atol=1e-12)
+
+
+def test_second_order_meta_gradient_matches_finite_differences(rng):
+    params = network.init_params(CFG, rng, dtype=np.float64)
+    adapt, evaluate = _demos(rng, B=2), _demos(rng, B=2)
+    alpha, steps = 0.05, 3          # a large step so second-order terms matter
+
+    def f(p):
+        return maml.meta_objective_batched(p, adapt, evaluate, imitation.imitation_loss, alpha, steps)
+
+    _, g = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, alpha, steps)
+    _, g_first = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, alpha, steps, True)
+    eps = 1e-5
+    for _ in range(3):
+        d = {k: rng.normal(size=v.shape) for k, v in params.items()}
+        fd = (f({k: params[k] + eps * d[k] for k in params}) - f({k: params[k] - eps * d[k] for k in params})) / (2 * eps)
+        analytic = sum(np.sum(g[k] * d[k]) for k in params)
+        first = sum(np.sum(g_first[k] * d[k]) for k in params)
+        assert analytic == pytest.approx(fd, rel=1e-6)
+        assert abs(first - fd) > 1e-4 * abs(fd)       # the first-order shortcut is measurably different
+
+
+def test_first_order_meta_gradient_is_the_plain_gradient_at_the_adapted_parameters(rng):
+    params = network.init_params(CFG, rng, dtype=np.float64)
+    adapt, evaluate = _demos(rng, B=2), _demos(rng, B=2)
+    _, g = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.05, 3, True)
+    expected = {k: 0.0 for k in params}
+    for b in range(2):
+        p = params
+        for _ in range(3):                            # eq. (1) written out by hand
+            gb = grad(imitation.imitation_loss)(p, tuple(a[b] for a in adapt))
+            p = {k: p[k] - 0.05 * gb[k] for k in p}
+        ge = grad(imitation.imitation_loss)(p, tuple(e[b] for e in evaluate))
+        expected = {k: expected[k] + ge[k] / 2 for k in params}
+    for k in params:
+        np.testing.assert_allclose(g[k], expected[k], rtol=1e-9, atol=1e-12)
+
+
+def test_adaptation_lowers_the_loss_and_alpha_zero_changes_nothing(rng):
+    params = network.init_params(network.NetworkConfig(), rng)          # the real float32 network
+    images = rng.random((20, 32, 32, 3), dtype=np.float32)
+    demo = (images, rng.normal(size=(20, 6)).astype(np.float32), rng.normal(size=(20, 2)).astype(np.float32))
+    before = imitation.imitation_loss(params, demo)
+    after = imitation.imitation_loss(imitation.adapt(params, demo, alpha=0.001, steps=3), demo)
+    assert after < before
+    same = imitation.adapt(params, demo, alpha=0.0, steps=3)
+    assert all(np.array_equal(same[k], params[k]) for k in params)
+    adapted = imitation.adapt(params, demo)
+    assert all(adapted[k].dtype == np.float32 for k in adapted)
+
+
+def test_batched_meta_gradient_keeps_float32(rng):
+    params = network.init_params(CFG, rng)
+    adapt, evaluate = _demos(rng, B=2, dtype=np.float32), _demos(rng, B=2, dtype=np.float32)
+    value, g = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.001, 3)
+    assert np.asarray(value).dtype == np.float32
+    assert all(v.dtype == np.float32 for v in g.values())
+
+
+def test_prepare_demos_scales_and_rejects_mismatched_shapes(rng):
+    images = rng.integers(0, 256, (2, 20, 32, 32, 3), dtype=np.uint8)
+    states, actions = np.ones((2, 20, 6), np.float32), np.full((2, 20, 2), 0.5, np.float32)
+    im, st, ac = imitation.prepare_demos(images, states, actions, max_torque=0.5)
+    assert im.dtype == np.float32 and im.max() <= 1.0
+    np.testing.assert_allclose(st[0, 0], 1 / imitation.STATE_SCALE)
+    np.testing.assert_allclose(ac, 1.0)
+    with pytest.raises(ValueError, match="actions must be"):
+        imitation.prepare_demos(images, states, actions[:, :-1], 0.5)
+
+
+def test_sample_meta_batch_pairs_two_different_demos_of_one_task(rng):
+    N, K = 4, 3
+    ids = np.arange(N * K, dtype=np.float32).reshape(N, K, 1, 1, 1, 1) * np.ones((1, 1, 2, 8, 8, 3), np.float32)
+    demos = (ids, np.zeros((N, K, 2, 6), np.float32), np.zeros((N, K, 2, 2), np.float32))
+    adapt, evaluate = imitation.sample_meta_batch(demos, rng, 3)
+    a, e = adapt[0][:, 0, 0, 0, 0].astype(int), evaluate[0][:, 0, 0, 0, 0].astype(int)
+    assert np.all(a // K == e // K) and np.all(a != e)          # same task, different demo
+    assert len(set((a // K).tolist())) == 3                      # distinct tasks in the meta-batch

@@ -1,0 +1,145 @@
+"""Meta-training: checkpoints, exact resume, NaN handling, learning, and the evaluate command."""
+import dataclasses
+import json
+import os
+
+import numpy as np
+import pytest
+
+from oneshot import data, evaluate, imitation, maml, train
+
+
+@pytest.fixture
+def tiny(tiny_datasets):
+    train_path, heldout_path = tiny_datasets
+    return dataclasses.replace(train.PROFILES["tiny"], train_data=train_path, heldout_data=heldout_path)
+
+
+def _same(p, q):
+    return set(p) == set(q) and all(np.array_equal(p[k], q[k]) for k in p)
+
+
+def test_checkpoint_round_trip(tiny, tmp_path):
+    params = train.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
+    ckpt = train.load_checkpoint(tmp_path / "run" / "checkpoint.npz")
+    assert _same(ckpt["params"], params) and ckpt["iteration"] == 2
+    assert ckpt["config"] == dataclasses.replace(tiny, iterations=2)
+    assert all(v.dtype == np.float32 for v in ckpt["params"].values())
+    assert ckpt["adam"]["step"] == 2
+    assert [p.name for p in (tmp_path / "run").iterdir() if p.name.startswith(".tmp")] == []
+
+
+def test_resume_gives_the_parameters_of_an_uninterrupted_run(tiny, tmp_path):
+    cfg = dataclasses.replace(tiny, iterations=8, checkpoint_every=3)
+    whole = train.train(cfg, tmp_path / "whole", progress=False)
+    train.train(cfg, tmp_path / "split", progress=False, stop_after=4)   # "killed" after iteration 4
+    ckpt = train.load_checkpoint(tmp_path / "split" / "checkpoint.npz")
+    assert ckpt["iteration"] == 4
+    resumed = train.train(cfg, tmp_path / "split", resume=True, progress=False)
+    assert _same(resumed, whole)
+    lines = [json.loads(x) for x in open(tmp_path / "split" / "log.jsonl")]
+    assert [r["iteration"] for r in lines] == list(range(1, 9))          # no duplicated log lines
+    with pytest.raises(FileExistsError, match="--resume"):
+        train.train(cfg, tmp_path / "whole", progress=False)
+    with pytest.raises(ValueError, match="different config"):
+        train.train(dataclasses.replace(cfg, lr=0.01), tmp_path / "whole", resume=True, progress=False)
+
+
+def test_nan_stops_training_and_keeps_the_last_good_checkpoint(tiny, tmp_path, monkeypatch):
+    cfg = dataclasses.replace(tiny, iterations=10, checkpoint_every=2)
+    real = maml.meta_gradient_batched
+    calls = {"n": 0}
+
+    def poisoned(*args, **kwargs):
+        calls["n"] += 1
+        value, grads = real(*args, **kwargs)
+        return (np.float32(np.nan), grads) if calls["n"] == 5 else (value, grads)
+
+    monkeypatch.setattr(train.maml, "meta_gradient_batched", poisoned)
+    with pytest.raises(train.TrainingDiverged, match=r"iteration 5.*iteration 4"):
+        train.train(cfg, tmp_path / "run", progress=False)
+    assert train.load_checkpoint(tmp_path / "run" / "checkpoint.npz")["iteration"] == 4
+
+
+def test_a_short_seeded_run_lowers_the_meta_objective(tiny, tmp_path):
+    cfg = dataclasses.replace(tiny, iterations=25, meta_batch=3, lr=1e-3)
+    train_set = data.load(cfg.train_data)
+    demos = imitation.prepare_demos(train_set["images"], train_set["states"], train_set["actions"], 0.5)
+    batches = [imitation.sample_meta_batch(demos, np.random.default_rng(100 + i), 3) for i in range(4)]
+
+    def objective(p):
+        return np.mean([maml.meta_objective_batched(p, a, e, imitation.imitation_loss, cfg.alpha, cfg.inner_steps)
+                        for a, e in batches])
+
+    first = train.train(dataclasses.replace(cfg, iterations=1), tmp_path / "one", progress=False)
+    last = train.train(cfg, tmp_path / "last", progress=False)
+    assert objective(last) < 0.5 * objective(first)
+
+
+def test_corrupt_checkpoint_is_named(tmp_path):
+    bad = tmp_path / "checkpoint.npz"
+    bad.write_bytes(b"PK\x03\x04 not really")
+    with pytest.raises(ValueError, match="not a readable oneshot checkpoint"):
+        train.load_checkpoint(bad)
+    with pytest.raises(FileNotFoundError, match="oneshot.train"):
+        train.load_checkpoint(tmp_path / "missing.npz")
+
+
+def test_wilson_interval_against_known_values():
+    lo, hi = evaluate.wilson_interval(8, 10)
+    assert lo == pytest.approx(0.4902, abs=1e-4) and hi == pytest.approx(0.9433, abs=1e-4)
+    lo, hi = evaluate.wilson_interval(100, 100)
+    assert hi == pytest.approx(1.0) and lo == pytest.approx(0.9630, abs=1e-4)
+
+
+def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, capsys):
+    train.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
+    out = tmp_path / "eval.json"
+    results = evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--heldout", tiny.heldout_data,
+                             "--train", "", "--trials", "3", "--json", str(out)])
+    r = results["heldout"]
+    assert r["trials"] == 2 * 3 and 0 <= r["successes"] <= 6
+    assert r["ci95"][0] <= r["rate"] <= r["ci95"][1]
+    assert "heldout colours: one-shot success" in capsys.readouterr().out
+    assert json.load(open(out))["heldout"]["trials"] == 6
+    # the trial scenes are not the demos' scenes
+    heldout = data.load(tiny.heldout_data)
+    world_seeds = {evaluate.EVAL_SEED_OFFSET + i * 1000 + j for i in range(2) for j in range(3)}
+    assert not world_seeds & set(heldout["seeds"].ravel().tolist())
+
+
+def test_sharded_meta_gradient_is_the_same_in_a_pool_and_close_to_unsharded(rng):
+    from oneshot import network
+    cfg = dataclasses.replace(train.PROFILES["default"], shards=2)
+    params = network.init_params(network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,)), rng)
+
+    def demos():
+        return (rng.random((5, 3, 8, 8, 3), dtype=np.float32), rng.normal(size=(5, 3, 6)).astype(np.float32),
+                rng.normal(size=(5, 3, 2)).astype(np.float32))
+
+    adapt, evaluate = demos(), demos()
+    assert [n for _, _, n in train.shard_meta_batch(adapt, evaluate, 2)] == [2, 3]
+    local = train.sharded_meta_gradient(params, adapt, evaluate, cfg)
+    pool = train.make_pool(cfg)
+    try:
+        pooled = train.sharded_meta_gradient(params, adapt, evaluate, cfg, pool) if pool else local
+    finally:
+        if pool:
+            pool.terminate()
+    assert local[0] == pooled[0] and _same(local[1], pooled[1])            # processes change nothing
+    whole = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, cfg.alpha,
+                                       cfg.inner_steps)
+    assert local[0] == pytest.approx(float(whole[0]), rel=1e-5)
+    for k in params:
+        np.testing.assert_allclose(local[1][k], whole[1][k], rtol=1e-4, atol=1e-6)
+
+
+def test_demo_adapts_a_checkpoint_and_reports_counts(tiny, tmp_path, capsys):
+    from oneshot import demo
+    train.train(dataclasses.replace(tiny, iterations=1), tmp_path / "run", progress=False)
+    result = demo.main(["--checkpoint", str(tmp_path / "run" / "checkpoint.npz"), "--trials", "1",
+                        "--out", str(tmp_path / "out")])
+    assert result["trials"] == 12 and 0 <= result["successes"] <= 12
+    out = capsys.readouterr().out
+    assert "one-shot success on held-out colours" in out and "expert success: 12/12" in out
+    assert (tmp_path / "out" / "one_shot.png").exists()
