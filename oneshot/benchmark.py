@@ -48,7 +48,9 @@ def bench_collect(demos=1000, workers=None):
 
 
 def peak_memory_mb():
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    """Peak resident memory (MB) of this process and of the largest of its finished worker processes."""
+    return (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)
 
 
 def main(argv=None):
@@ -63,6 +65,7 @@ def main(argv=None):
     m = sub.add_parser("maml", help="seconds per second-order meta-iteration")
     m.add_argument("--iterations", type=int, default=20)
     m.add_argument("--profile", default="default")
+    m.add_argument("--first-order", action="store_true", help="time the first-order approximation")
     args = p.parse_args(argv)
     if args.what == "expert":
         result = bench_expert(args.scenes)
@@ -70,8 +73,11 @@ def main(argv=None):
         result = bench_collect(args.demos, args.workers)
     else:
         from oneshot.train import bench_meta_iteration
-        result = bench_meta_iteration(args.iterations, args.profile)
-    result["peak_memory_mb"] = round(peak_memory_mb(), 1)
+        result = bench_meta_iteration(args.iterations, args.profile,
+                                      **({"first_order": True} if args.first_order else {}))
+    main_mb, worker_mb = peak_memory_mb()
+    result["peak_memory_mb"] = round(main_mb, 1)
+    result["peak_worker_memory_mb"] = round(worker_mb, 1)
     json.dump(result, sys.stdout, indent=1)
     print()
 

@@ -83,6 +83,8 @@ def main(argv=None):
                    help="meta-training demonstrations, for the contrast (.npz; '' to skip)")
     p.add_argument("--trials", type=int, default=10, help="trials per colour (default 10: 120 held-out trials)")
     p.add_argument("--seed", type=int, default=0, help="seed of the trial scenes")
+    p.add_argument("--unadapted", action="store_true",
+                   help="also run the policy without adaptation on the held-out colours (does adapting help?)")
     p.add_argument("--json", default=None, help="also write the results to this JSON file")
     args = p.parse_args(argv)
     ckpt = load_checkpoint(args.checkpoint)
@@ -97,6 +99,12 @@ def main(argv=None):
         print(f"{name} colours: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
               f"95% CI [{lo:.3f}, {hi:.3f}]")
         results[name] = r
+        if args.unadapted and name == "heldout":
+            u = one_shot_success(params, dataset, args.trials, cfg.alpha, cfg.inner_steps, args.seed, adapt=False)
+            lo, hi = u["ci95"]
+            print(f"heldout colours, unadapted policy: success {u['rate']:.3f} ({u['successes']}/{u['trials']}), "
+                  f"95% CI [{lo:.3f}, {hi:.3f}]")
+            results["heldout_unadapted"] = u
     if args.json:
         with open(args.json, "w") as f:
             json.dump({k: dict(v, per_colour={str(c): x for c, x in v["per_colour"].items()})

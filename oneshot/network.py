@@ -18,6 +18,7 @@ Everything runs in the dtype of the parameters: float32 for training, float64 fo
 from dataclasses import dataclass
 
 import autograd.numpy as anp
+from autograd.tracer import getval
 import numpy as np
 from autograd.extend import defvjp, primitive
 from numpy.lib.stride_tricks import as_strided
@@ -46,6 +47,7 @@ class NetworkConfig:
     state_dim: int = 6
     action_dim: int = 2
     bias_transform: int = 0
+    feature_points: bool = False
 
     def __post_init__(self):
         if self.kernel % 2 != 1:
@@ -90,7 +92,10 @@ def param_shapes(config):
         shapes[f"conv{i}_b"] = (c_out,)
         c_in = c_out
     side = feature_sizes(config)[-1] if config.channels else config.image_size
-    n_in = side * side * c_in + config.bias_transform + config.state_dim
+    n_image = 2 * c_in if config.feature_points else side * side * c_in
+    n_in = n_image + config.bias_transform + config.state_dim
+    if config.feature_points:
+        shapes["fp_temperature"] = (1,)
     if config.bias_transform:
         shapes["bias_transform"] = (config.bias_transform,)
     for i, n_out in enumerate(config.hidden):
@@ -113,6 +118,9 @@ def init_params(config, rng, dtype=np.float32):
     for name, shape in param_shapes(config).items():
         if name.endswith("_b") or name == "bias_transform":
             params[name] = np.zeros(shape, dtype)
+            continue
+        if name == "fp_temperature":
+            params[name] = np.ones(shape, dtype)
             continue
         fan_in = int(np.prod(shape[:-1]))  # conv: kernel * kernel * C_in; fc: n_in
         std = np.sqrt(2.0 / (fan_in + shape[-1])) if name == "out_w" else np.sqrt(2.0 / fan_in)
@@ -269,7 +277,10 @@ def forward(params, images, states, stride=2):
     while f"conv{i}_w" in params:  # (T, H, W, 3) -> (T, H/2, W/2, 40) -> ... -> (T, H/8, W/8, 40)
         x = relu(conv2d(x, params[f"conv{i}_w"], params[f"conv{i}_b"], stride))
         i += 1
-    parts = [anp.reshape(x, (*states.shape[:-1], -1))]  # (T, H/8 * W/8 * 40) image features
+    if "fp_temperature" in params:  # feature points: (T, 2 * 40) expected (x, y) of each channel
+        parts = [spatial_soft_argmax(x, params["fp_temperature"])]
+    else:
+        parts = [anp.reshape(x, (*states.shape[:-1], -1))]  # (T, H/8 * W/8 * 40) image features
     if "bias_transform" in params:  # the same learned vector appended to every frame: (T, bias_transform)
         parts.append(np.ones((*states.shape[:-1], 1), states.dtype) * _per_frame(params["bias_transform"]))
     parts.append(states)
@@ -278,6 +289,25 @@ def forward(params, images, states, stride=2):
         h = relu(add_bias(h @ params[f"fc{i}_w"], params[f"fc{i}_b"]))
         i += 1
     return add_bias(h @ params["out_w"], params["out_b"])  # (T, action_dim)
+
+
+def spatial_soft_argmax(x, temperature):
+    """Feature points (Levine et al., 2016; an option of MIL's released code): for each channel, the
+    expected image position under a softmax over the channel's activations.
+
+    x: (..., H, W, C); temperature: (1,) shared or (B, 1) per task -> (..., 2 C) as (x_1..x_C, y_1..y_C)
+    in [-1, 1], x to the right, y down. A gradient step on the next layer's weights then re-weights
+    *whose* position drives the action, which suits one-shot adaptation to a colour.
+    """
+    *lead, h, w, c = x.shape
+    t = temperature if temperature.ndim == 1 else anp.reshape(temperature, temperature.shape[:1] + (1,) * (len(lead) + 1))
+    z = anp.reshape(x, (*lead, h * w, c)) * t
+    z = z - getval(z).max(axis=-2, keepdims=True)  # softmax is shift-invariant: the shift is a constant
+    e = anp.exp(z)
+    p = e / anp.sum(e, axis=-2, keepdims=True)  # (..., H*W, C), sums to 1 over positions
+    xs = np.tile(np.linspace(-1, 1, w, dtype=x.dtype), h)[:, None]  # (H*W, 1)
+    ys = np.repeat(np.linspace(-1, 1, h, dtype=x.dtype), w)[:, None]
+    return anp.concatenate([anp.sum(p * xs, axis=-2), anp.sum(p * ys, axis=-2)], axis=-1)
 
 
 def _per_frame(v):
@@ -307,7 +337,7 @@ def _check_inputs(params, images, states, stride, task_axes):
         k, c_last = params[f"conv{i}_w"].shape[-4], params[f"conv{i}_w"].shape[-1]
         side_h, side_w = conv_output_size(side_h, k, stride), conv_output_size(side_w, k, stride)
         i += 1
-    n_features = side_h * side_w * c_last
+    n_features = 2 * c_last if "fp_temperature" in params else side_h * side_w * c_last
     n_in = params["fc0_w"].shape[-2] if "fc0_w" in params else params["out_w"].shape[-2]
     n_bias = params["bias_transform"].shape[-1] if "bias_transform" in params else 0
     state_dim = n_in - n_features - n_bias

@@ -42,6 +42,7 @@ class TrainConfig:
     clip: float = 10.0                       # meta-gradient clipped to [-clip, clip] (MIL: 10)
     first_order: bool = False                # first-order MAML approximation, for comparison
     bias_transform: int = 0                  # size of the bias-transformation vector (0: off)
+    feature_points: bool = False             # spatial soft-argmax instead of flattening (an option)
     seed: int = 0                            # parameters and meta-batch sampling
     log_every: int = 10
     eval_every: int = 500                    # held-out one-shot success during training
@@ -54,6 +55,7 @@ class TrainConfig:
 PROFILES = {
     "default": TrainConfig(),
     "bias": TrainConfig(bias_transform=10),
+    "points": TrainConfig(bias_transform=10, feature_points=True),
     "paper": TrainConfig(iterations=30000, eval_every=1000),
     "tiny": TrainConfig(train_data="data/tiny_train.npz", heldout_data="data/tiny_heldout.npz",
                         train_demos=3, iterations=20, meta_batch=2, log_every=1, eval_every=0,
@@ -230,9 +232,12 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
     # 2. Parameters, optimiser and random state: fresh, or exactly as the checkpoint left them.
     if resume:
         ckpt = load_checkpoint(ckpt_path)
-        if ckpt["config"] != cfg:
+        schedule = dict(iterations=cfg.iterations, log_every=cfg.log_every, eval_every=cfg.eval_every,
+                        eval_trials=cfg.eval_trials, checkpoint_every=cfg.checkpoint_every)
+        if dataclasses.replace(ckpt["config"], **schedule) != cfg:
             raise ValueError(f"{ckpt_path!r} was trained with a different config; resume with the same "
-                             f"profile and options, or start a new run folder")
+                             f"profile and options (only iterations and the log/eval/checkpoint cadence "
+                             f"may change), or start a new run folder")
         params, adam, start, rng, net_cfg = (ckpt["params"], ckpt["adam"], ckpt["iteration"],
                                              ckpt["rng"], ckpt["network"])
         _truncate_log(log_path, start)
@@ -240,7 +245,8 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
         if os.path.exists(ckpt_path):
             raise FileExistsError(f"{run_dir!r} already holds a run; use --resume, or another --run folder")
         rng = np.random.default_rng(cfg.seed)
-        net_cfg = network.NetworkConfig(image_size=image_size, bias_transform=cfg.bias_transform)
+        net_cfg = network.NetworkConfig(image_size=image_size, bias_transform=cfg.bias_transform,
+                                        feature_points=cfg.feature_points)
         params = network.init_params(net_cfg, rng)
         adam, start = optim.adam_init(params), 0
         os.makedirs(run_dir, exist_ok=True)
@@ -309,7 +315,8 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
 
     FLOPs are estimated as 3 (3 s + 1) forward passes per task for s inner steps: each inner step
     records a forward and a backward pass (~3 forward passes), the outer loss one more, and the
-    meta-gradient's backward pass costs about twice the recorded forward graph.
+    meta-gradient's backward pass costs about twice the recorded forward graph. First order: the
+    inner steps are not recorded, so 3 s + 3 (inner forward+backward, outer forward+backward).
     """
     _tune_malloc()
     cfg = dataclasses.replace(PROFILES[profile], **overrides)
@@ -334,7 +341,8 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
         if pool is not None:
             pool.terminate()
     s = float(np.median(times[2:]))
-    flops = B * 3 * (3 * cfg.inner_steps + 1) * network.count_flops(net_cfg, T)
+    passes = 3 * cfg.inner_steps + 3 if cfg.first_order else 3 * (3 * cfg.inner_steps + 1)
+    flops = B * passes * network.count_flops(net_cfg, T)
     return {"profile": profile, "meta_batch": B, "inner_steps": cfg.inner_steps, "T": T,
             "image_size": image_size, "first_order": cfg.first_order, "shards": cfg.shards,
             "seconds_per_iteration": round(s, 4),

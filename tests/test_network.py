@@ -262,3 +262,20 @@ def test_count_flops_by_hand():
     # The paper network at 32x32: conv layers dominate.
     conv_macs = 16 * 16 * 27 * 40 + 8 * 8 * 360 * 40 + 4 * 4 * 360 * 40
     assert count_flops(NetworkConfig(), 1) == 2 * (conv_macs + 646 * 100 + 3 * 100 * 100 + 100 * 2)
+
+
+def test_feature_points_second_order_gradients_and_positions():
+    from oneshot import network
+    """The spatial soft-argmax option: exact second-order gradients, and a lone hot spot's
+    expected position is that spot's coordinates (x right, y down, in [-1, 1])."""
+    cfg = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,), feature_points=True, bias_transform=2)
+    rng = np.random.default_rng(0)
+    params = network.init_params(cfg, rng, dtype=np.float64)
+    assert params["fp_temperature"].shape == (1,)
+    images, states = rng.random((2, 8, 8, 3)), rng.normal(size=(2, 6))
+    check_grads(lambda p: network.predict(p, images, states), modes=["rev"], order=2)(params)
+    x = np.zeros((1, 5, 5, 2))
+    x[0, 1, 3, 0] = 50.0                    # channel 0: a spike at row 1, column 3
+    points = network.spatial_soft_argmax(x, np.ones(1))
+    np.testing.assert_allclose(points[0, [0, 2]], [0.5, -0.5], atol=1e-6)   # (x, y) of channel 0
+    np.testing.assert_allclose(points[0, [1, 3]], [0.0, 0.0], atol=1e-12)   # flat channel 1: the centre

@@ -96,12 +96,13 @@ def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, caps
     train.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
     out = tmp_path / "eval.json"
     results = evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--heldout", tiny.heldout_data,
-                             "--train", "", "--trials", "3", "--json", str(out)])
+                             "--train", "", "--trials", "3", "--json", str(out), "--unadapted"])
     r = results["heldout"]
     assert r["trials"] == 2 * 3 and 0 <= r["successes"] <= 6
     assert r["ci95"][0] <= r["rate"] <= r["ci95"][1]
     assert "heldout colours: one-shot success" in capsys.readouterr().out
     assert json.load(open(out))["heldout"]["trials"] == 6
+    assert results["heldout_unadapted"]["trials"] == 6
     # the trial scenes are not the demos' scenes
     heldout = data.load(tiny.heldout_data)
     world_seeds = {evaluate.EVAL_SEED_OFFSET + i * 1000 + j for i in range(2) for j in range(3)}
