@@ -13,7 +13,6 @@ The policy is the pre-trained checkpoint shipped in `oneshot/pretrained/` (repro
 import argparse
 import os
 
-import numpy as np
 
 from oneshot import expert, imitation, palette, viz
 from oneshot.evaluate import wilson_interval

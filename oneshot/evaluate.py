@@ -10,7 +10,6 @@ import json
 import math
 import sys
 
-import numpy as np
 from tqdm import tqdm
 
 from oneshot import data, imitation

@@ -19,7 +19,7 @@ import numpy as np
 
 from oneshot import arm, ilqg
 from oneshot.ilqg import ILQGConfig
-from oneshot.world import ReachWorld, is_success, observation_state
+from oneshot.world import observation_state
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from oneshot import collect, data, palette
-from oneshot.world import is_success
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,5 @@
 """Section III on the real network: eq. (2), the batched meta-objective, and second-order MAML,
 against independent references (per-task loops and finite differences)."""
-import autograd.numpy as anp
 import numpy as np
 import pytest
 from autograd import grad

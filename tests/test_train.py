@@ -1,7 +1,6 @@
 """Meta-training: checkpoints, exact resume, NaN handling, learning, and the evaluate command."""
 import dataclasses
 import json
-import os
 
 import numpy as np
 import pytest
