@@ -16,6 +16,7 @@ A dataset is a plain dict of arrays plus a "metadata" dict (N tasks, K demos per
 `load` checks the format version, keys, dtypes, shapes and a SHA-256 checksum of the arrays, and
 says exactly what is wrong with a bad or truncated file.
 """
+import contextlib
 import hashlib
 import json
 import os
@@ -83,28 +84,35 @@ def validate(dataset, source="dataset"):
         raise DatasetError(f"{source}: some demo's target object does not have its task's colour; {fix}")
 
 
-def save(dataset, path):
-    """Write `dataset` (validated) to `path` (.npz), atomically. Adds the checksum to the metadata."""
-    validate(dataset)
-    arrays = {key: dataset[key] for key in ARRAYS}
-    meta = dict(dataset.get("metadata", {}), format_version=FORMAT_VERSION, checksum=checksum(arrays))
+@contextlib.contextmanager
+def atomic_write(path):
+    """Open a temporary file beside `path` for binary writing; on success fsync it and rename it to
+    `path` (with the usual permissions), on failure remove it: never half a file at `path`."""
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
     os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=".npz")
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.splitext(path)[1])
     try:
         with os.fdopen(fd, "wb") as f:
-            np.savez_compressed(f, metadata=np.array(json.dumps(meta, sort_keys=True)), **arrays)
+            yield f
             f.flush()
             os.fsync(f.fileno())
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)          # mkstemp makes 0600; give the usual permissions
         os.replace(tmp, path)
-    except BaseException:
+    finally:
         if os.path.exists(tmp):
             os.remove(tmp)
-        raise
+
+
+def save(dataset, path):
+    """Write `dataset` (validated) to `path` (.npz), atomically. Adds the checksum to the metadata."""
+    validate(dataset)
+    arrays = {key: dataset[key] for key in ARRAYS}
+    meta = dict(dataset.get("metadata", {}), format_version=FORMAT_VERSION, checksum=checksum(arrays))
+    with atomic_write(path) as f:
+        np.savez_compressed(f, metadata=np.array(json.dumps(meta, sort_keys=True)), **arrays)
     return meta
 
 

@@ -31,24 +31,28 @@ def main(argv=None):
     args = p.parse_args(argv)
     from oneshot.train import load_checkpoint
 
+    ckpt = load_checkpoint(args.checkpoint) if os.path.exists(args.checkpoint) else None
+    # Demos like the ones the policy was meta-trained on (with the same DART noise, if any).
+    expert_cfg = expert.ExpertConfig(action_noise=ckpt["config"].demo_noise if ckpt else 0.0)
+
     # 1. One expert demonstration per held-out colour.
     world = ReachWorld(WorldConfig(split="heldout"))
     colours = palette.split_colours("heldout")
     print(f"1. The iLQG expert records ONE demonstration for each of the {len(colours)} held-out colours")
     demos = {}
     for i, colour in enumerate(colours):
-        d = expert.demonstrate(world, seed=args.seed * 1000 + i, options={"target_colour": int(colour)})
+        d = expert.demonstrate(world, seed=args.seed * 1000 + i, options={"target_colour": int(colour)},
+                               cfg=expert_cfg)
         demos[int(colour)] = d
     print(f"   expert success: {sum(d['success'] for d in demos.values())}/{len(demos)}")
 
-    if not os.path.exists(args.checkpoint):
+    if ckpt is None:
         print(f"no meta-trained policy at {args.checkpoint}; train one with "
               f"`python -m oneshot.train --profile default --run runs/default` and pass "
               f"--checkpoint runs/default/checkpoint.npz")
         viz.save_atomically(viz.filmstrip([d["images"] for d in list(demos.values())[:4]]),
                             os.path.join(args.out, "expert_demos.png"))
         return None
-    ckpt = load_checkpoint(args.checkpoint)
     params, cfg = ckpt["params"], ckpt["config"]
     max_torque = world.config.arm.max_torque
 

@@ -15,7 +15,6 @@ import json
 import multiprocessing
 import os
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 
@@ -75,16 +74,8 @@ def save_checkpoint(path, params, adam_state, iteration, rng, cfg, net_cfg):
     arrays.update(optim.state_to_arrays(adam_state))
     meta = {"iteration": iteration, "rng": rng.bit_generator.state, "config": dataclasses.asdict(cfg),
             "network": dataclasses.asdict(net_cfg), "format_version": 1}
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=".npz")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, meta=np.array(json.dumps(meta)), **arrays)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    with data.atomic_write(path) as f:
+        np.savez(f, meta=np.array(json.dumps(meta)), **arrays)
 
 
 def load_checkpoint(path):

@@ -4,6 +4,8 @@ import os
 import numpy as np
 from PIL import Image, ImageDraw
 
+from oneshot.data import atomic_write
+
 
 def filmstrip(rows, every=2, scale=4, labels=None, gap=2):
     """Tile episodes into one picture, one row each.
@@ -34,15 +36,8 @@ def filmstrip(rows, every=2, scale=4, labels=None, gap=2):
 
 def save_atomically(image, path, **kwargs):
     """Save a PIL image via a temporary file and a rename, so no half-written picture is left."""
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    tmp = os.path.join(folder, f".tmp-{os.getpid()}-{os.path.basename(path)}")
-    try:
-        image.save(tmp, format=os.path.splitext(path)[1][1:].upper().replace("JPG", "JPEG"), **kwargs)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    with atomic_write(path) as f:
+        image.save(f, format=os.path.splitext(path)[1][1:].upper().replace("JPG", "JPEG"), **kwargs)
 
 
 def save_gif(frames, path, scale=6, ms_per_frame=100):

@@ -1,6 +1,7 @@
 """Meta-training: checkpoints, exact resume, NaN handling, learning, and the evaluate command."""
 import dataclasses
 import json
+import os
 
 import numpy as np
 import pytest
@@ -26,6 +27,9 @@ def test_checkpoint_round_trip(tiny, tmp_path):
     assert all(v.dtype == np.float32 for v in ckpt["params"].values())
     assert ckpt["adam"]["step"] == 2
     assert [p.name for p in (tmp_path / "run").iterdir() if p.name.startswith(".tmp")] == []
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (tmp_path / "run" / "checkpoint.npz").stat().st_mode & 0o777 == 0o666 & ~umask
 
 
 def test_resume_gives_the_parameters_of_an_uninterrupted_run(tiny, tmp_path):
