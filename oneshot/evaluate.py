@@ -51,9 +51,10 @@ def one_shot_success(params, dataset, trials_per_colour=10, alpha=0.001, steps=3
     meta = dataset["metadata"]
     world_cfg = world_config_of(meta)
     world = ReachWorld(world_cfg)
-    demos = imitation.prepare_demos(dataset["images"], dataset["states"], dataset["actions"],
-                                    world_cfg.arm.max_torque)
     n, k = dataset["images"].shape[:2]
+    k = min(k, trials_per_colour)                     # only these demos are used: convert just them
+    demos = imitation.prepare_demos(dataset["images"][:, :k], dataset["states"][:, :k],
+                                    dataset["actions"][:, :k], world_cfg.arm.max_torque)
     wins, per_colour = 0, {}
     bar = tqdm(total=n * trials_per_colour, desc=f"one-shot trials ({meta['split']})", disable=not progress)
     for i in range(n):
