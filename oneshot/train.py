@@ -45,7 +45,7 @@ class TrainConfig:
     seed: int = 0                            # parameters and meta-batch sampling
     log_every: int = 10
     eval_every: int = 500                    # held-out one-shot success during training
-    eval_trials: int = 2                     # trials per held-out colour in those evaluations
+    eval_trials: int = 5                     # trials per held-out colour in those evaluations (60 in all)
     checkpoint_every: int = 100
     shards: int = 2                          # the meta-batch is split in this many parts, computed by
                                              # up to `shards` processes (results depend on shards only)
