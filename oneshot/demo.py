@@ -7,8 +7,9 @@ One-shot visual imitation, end to end (paper Sections III-IV):
 Prints the one-shot success rate (with a 95% interval) and the unadapted policy's for contrast, and
 writes pictures to DIR: the demo and the adapted policy side by side (PNG), and one trial (GIF).
 
-The policy is the pre-trained checkpoint shipped in `oneshot/pretrained/` (reproduce it with
-`python -m oneshot.train --profile default --run runs/default`), or any checkpoint you pass.
+The policy is the pre-trained checkpoint shipped in `oneshot/pretrained/` (run A of
+docs/training.md; reproduce it with `OPENBLAS_NUM_THREADS=1 python -m oneshot.train --profile default
+--shards 1 --iterations 1300`), or any checkpoint you pass.
 """
 import argparse
 import os

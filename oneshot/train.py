@@ -30,8 +30,9 @@ from oneshot.expert import ExpertConfig
 class TrainConfig:
     """Everything a run depends on. Defaults are the fast profile; PROFILES["paper"] is MIL's."""
     train_data: str = "data/train.npz"       # collected if missing: 36 colours x `train_demos`
-    heldout_data: str = "data/heldout.npz"   # collected if missing: 12 colours x 10 demos
+    heldout_data: str = "data/heldout.npz"   # collected if missing: 12 colours x `heldout_demos`
     train_demos: int = 24                    # demos per meta-training colour when collecting
+    heldout_demos: int = 10                  # demos per held-out colour when collecting
     demo_noise: float = 0.1                  # DART torque noise (N m) when collecting (docs/imitation.md)
     iterations: int = 2000                   # meta-iterations (one Adam step each)
     meta_batch: int = 5                      # tasks per meta-iteration (MIL: 5)
@@ -57,7 +58,7 @@ PROFILES = {
     "points": TrainConfig(bias_transform=10, feature_points=True),
     "paper": TrainConfig(iterations=30000, eval_every=1000),
     "tiny": TrainConfig(train_data="data/tiny_train.npz", heldout_data="data/tiny_heldout.npz",
-                        train_demos=3, iterations=20, meta_batch=2, log_every=1, eval_every=0,
+                        train_demos=3, heldout_demos=2, iterations=20, meta_batch=2, log_every=1, eval_every=0,
                         checkpoint_every=5, shards=1),
 }
 
@@ -107,9 +108,7 @@ def ensure_datasets(cfg, progress=True):
     """Load the meta-training and held-out datasets, collecting any that is missing."""
     out = []
     for path, split, tasks, demos, seed in ((cfg.train_data, "train", 36, cfg.train_demos, 0),
-                                            (cfg.heldout_data, "heldout", 12, 10, 1)):
-        if cfg.train_demos < 5 and split == "heldout":
-            demos = 2                        # the tiny profile: tiny datasets
+                                            (cfg.heldout_data, "heldout", 12, cfg.heldout_demos, 1)):
         if not os.path.exists(path):
             print(f"{path} is missing: collecting it (python -m oneshot.collect --out {path} --split "
                   f"{split} --tasks {tasks} --demos {demos} --seed {seed} --noise {cfg.demo_noise})",
@@ -138,15 +137,11 @@ def _tune_malloc():
 
 # --- the meta-gradient, in shards ----------------------------------------------------------------
 
-_SHARD = {}     # set before the worker processes fork, so they inherit the data instead of copying it
-
-
 def _shard_gradient(job):
     """Mean meta-loss and meta-gradient over one shard of the meta-batch (runs in a worker)."""
-    params, adapt, evaluate = job
-    cfg = _SHARD["cfg"]
-    return maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss,
-                                      cfg.alpha, cfg.inner_steps, cfg.first_order)
+    params, adapt, evaluate, alpha, steps, first_order = job
+    return maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, alpha, steps,
+                                      first_order)
 
 
 def shard_meta_batch(adapt, evaluate, shards):
@@ -165,8 +160,7 @@ def sharded_meta_gradient(params, adapt, evaluate, cfg, pool=None):
     not on whether a pool is used.
     """
     parts = shard_meta_batch(adapt, evaluate, cfg.shards)
-    jobs = [(params, a, e) for a, e, _ in parts]
-    _SHARD["cfg"] = cfg
+    jobs = [(params, a, e, cfg.alpha, cfg.inner_steps, cfg.first_order) for a, e, _ in parts]
     results = pool.map(_shard_gradient, jobs) if pool is not None else [_shard_gradient(j) for j in jobs]
     B = sum(n for _, _, n in parts)
     loss = sum(v * (n / B) for (v, _), (_, _, n) in zip(results, parts))
@@ -199,7 +193,6 @@ def make_pool(cfg):
     """Worker processes for the shards (None when one process is enough)."""
     if cfg.shards < 2 or (os.cpu_count() or 1) < 2:
         return None
-    _SHARD["cfg"] = cfg
     return multiprocessing.get_context("fork").Pool(min(cfg.shards, os.cpu_count()),
                                                     initializer=_blas_threads, initargs=(1,))
 
