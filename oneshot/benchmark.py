@@ -4,8 +4,13 @@ These measure what tests should not time: medians of repeated runs on this machi
     expert   iLQG solve time (median over scenes) and the expert's success rate over many scenes
     collect  wall time to collect a dataset of demonstrations with all cores
     maml     seconds per second-order meta-iteration, GFLOP/s and peak memory
+    privileged  ceilings for the policy network: plain behavioural cloning on all meta-training
+             demos when the policy is GIVEN what one-shot imitation must infer (the target's position,
+             or its colour), scored on held-out colours. If these are high, what remains hard is the
+             one-shot identification of the colour, i.e. meta-learning itself.
 """
 import argparse
+import dataclasses
 import json
 import os
 import resource
@@ -16,7 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from oneshot import collect, expert
-from oneshot.world import ReachWorld, WorldConfig
+from oneshot.world import ReachWorld, WorldConfig, is_success
 
 
 def bench_expert(scenes=500, seed=0):
@@ -47,6 +52,75 @@ def bench_collect(demos=1000, workers=None):
             "expert_success_rate": d["metadata"]["expert_success_rate"]}
 
 
+def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_points=False, seed=0,
+                     train_data="data/train.npz", lr=1e-3):
+    """Behavioural cloning with privileged inputs: the ceiling of the network, not a method.
+
+    given="position": the target's position (m / 0.2) is appended to the robot state.
+    given="colour":   the target colour's RGB in [0, 1] is appended to every pixel (3 more input
+                      channels to the first convolution; MIL's contextual policy gets a demo image there).
+    Trains the policy network (`oneshot.network`) on all demos of `train_data` with Adam, `batch`
+    demos per step, then runs it in `trials` new scenes of held-out colours.
+    """
+    import autograd.numpy as anp
+    from autograd import grad
+
+    from oneshot import data, imitation, network, optim, palette
+    from oneshot.evaluate import EVAL_SEED_OFFSET, wilson_interval, world_config_of
+    from oneshot.world import observation_state
+
+    if given not in ("position", "colour"):
+        raise ValueError(f"given must be 'position' or 'colour'; got {given!r}")
+    ds = data.load(train_data)
+    world_cfg = world_config_of(ds["metadata"])
+    max_torque = world_cfg.arm.max_torque
+    rgb = palette.palette_rgb(world_cfg.palette).astype(np.float32) / 255     # (colours, 3)
+    images, states, actions = imitation.prepare_demos(ds["images"], ds["states"], ds["actions"], max_torque)
+    n, k, T = states.shape[:3]
+    target = ds["positions"][np.arange(n)[:, None], np.arange(k), ds["target_index"].astype(int)]  # (N, K, 2)
+    rng = np.random.default_rng(seed)
+    net_cfg = network.NetworkConfig(image_size=images.shape[-2], feature_points=feature_points,
+                                    state_dim=8 if given == "position" else 6)
+    params = network.init_params(net_cfg, rng)
+    if given == "colour":                                      # first convolution sees 6 channels
+        w = params["conv0_w"]
+        params["conv0_w"] = (rng.standard_normal((*w.shape[:2], 6, w.shape[3])) *
+                             np.sqrt(2 / (9 * 6))).astype(np.float32)
+
+    def inputs(im, st, tgt, colour):
+        """im (B, H, W, 3), st (B, 6), tgt (B, 2) m, colour (B, 3) -> network inputs."""
+        if given == "position":
+            return im, np.concatenate([st, tgt / np.float32(0.2)], -1).astype(np.float32)
+        return np.concatenate([im, np.broadcast_to(colour[:, None, None, :], im.shape)], -1), st
+
+    def loss(p, im, st, act):
+        r = network.forward(p, im, st) - act
+        return anp.sum(r * r) / len(act)                      # eq. (2) per frame
+
+    g, adam = grad(loss), optim.adam_init(params)
+    colours = rgb[ds["task_colours"].astype(int)]
+    for _ in tqdm(range(steps), desc=f"BC, {given} given"):
+        ti, ki = rng.integers(n, size=batch), rng.integers(k, size=batch)
+        im, st = inputs(images[ti, ki].reshape(-1, *images.shape[-3:]), states[ti, ki].reshape(-1, 6),
+                        np.repeat(target[ti, ki], T, 0), np.repeat(colours[ti], T, 0))
+        params, adam = optim.adam_step(params, g(params, im, st, actions[ti, ki].reshape(-1, 2)), adam, lr)
+    world = ReachWorld(dataclasses.replace(world_cfg, split="heldout"))
+    wins = 0
+    for j in tqdm(range(trials), desc="held-out trials"):
+        obs, info = world.reset(seed=EVAL_SEED_OFFSET + j)
+        tgt, colour = info["target_position"].astype(np.float32)[None], rgb[info["scene"].target_colour][None]
+        ee = []
+        for _ in range(T):
+            st = (observation_state(obs) / imitation.STATE_SCALE)[None].astype(np.float32)
+            im, st = inputs(network.images_to_float(obs["image"])[None], st, tgt, colour)
+            obs, _, _, _, info = world.step(np.asarray(network.forward(params, im, st))[0].astype(float) * max_torque)
+            ee.append(obs["end_effector"])
+        wins += is_success(ee, info["target_position"], world_cfg.success_radius)
+    return {"given": given, "feature_points": feature_points, "steps": steps, "batch_demos": batch,
+            "seed": seed, "heldout_trials": trials, "heldout_success": wins / trials,
+            "ci95": wilson_interval(wins, trials)}
+
+
 def peak_memory_mb():
     """Peak resident memory (MB) of this process and of the largest of its finished worker processes."""
     return (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
@@ -66,11 +140,21 @@ def main(argv=None):
     m.add_argument("--iterations", type=int, default=20)
     m.add_argument("--profile", default="default")
     m.add_argument("--first-order", action="store_true", help="time the first-order approximation")
+    v = sub.add_parser("privileged", help="ceiling: behavioural cloning given the target's position or colour")
+    v.add_argument("--given", choices=("position", "colour"), default="colour")
+    v.add_argument("--steps", type=int, default=3000)
+    v.add_argument("--trials", type=int, default=60)
+    v.add_argument("--feature-points", action="store_true")
+    v.add_argument("--train-data", default="data/train.npz")
+    v.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
     if args.what == "expert":
         result = bench_expert(args.scenes)
     elif args.what == "collect":
         result = bench_collect(args.demos, args.workers)
+    elif args.what == "privileged":
+        result = bench_privileged(args.given, args.steps, trials=args.trials, feature_points=args.feature_points,
+                                  seed=args.seed, train_data=args.train_data)
     else:
         from oneshot.train import bench_meta_iteration
         result = bench_meta_iteration(args.iterations, args.profile,

@@ -2,14 +2,15 @@
 
 One-shot visual imitation, end to end (paper Sections III-IV):
   1. for every held-out colour (never seen in meta-training) the iLQG expert records ONE demonstration;
-  2. the meta-trained policy adapts to that demo with 3 gradient steps (eq. 1);
+  2. the meta-trained policy adapts to that demo by gradient descent (eq. 1; the default profile takes
+     one step on its convolution layers, docs/training.md);
   3. the adapted policy acts in new scenes of that colour (new positions, new distractors).
 Prints the one-shot success rate (with a 95% interval) and the unadapted policy's for contrast, and
 writes pictures to DIR: the demo and the adapted policy side by side (PNG), and one trial (GIF).
 
-The policy is the pre-trained checkpoint shipped in `oneshot/pretrained/` (run A of
-docs/training.md; reproduce it with `OPENBLAS_NUM_THREADS=1 python -m oneshot.train --profile default
---shards 1 --iterations 1300`), or any checkpoint you pass.
+The policy is the pre-trained checkpoint shipped in `oneshot/pretrained/` (the default profile's
+run in docs/training.md; reproduce it with `python -m oneshot.train --profile default`, seed 0), or
+any checkpoint you pass.
 """
 import argparse
 import os
@@ -30,7 +31,7 @@ def main(argv=None):
     p.add_argument("--trials", type=int, default=3, help="new scenes per held-out colour (default 3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the demos and trial scenes")
     args = p.parse_args(argv)
-    from oneshot.train import load_checkpoint
+    from oneshot.train import inner_only, load_checkpoint
 
     ckpt = load_checkpoint(args.checkpoint) if os.path.exists(args.checkpoint) else None
     # Demos like the ones the policy was meta-trained on (with the same DART noise, if any).
@@ -59,13 +60,13 @@ def main(argv=None):
 
     # 2-3. Adapt on the one demo, act in new scenes; the unadapted policy for contrast.
     print(f"2. Adapt the meta-trained policy ({ckpt['iteration']} meta-iterations) to each demo: "
-          f"{cfg.inner_steps} gradient steps of size {cfg.alpha} (eq. 1)")
+          f"{cfg.inner_steps} gradient step(s) of size {cfg.alpha} on {cfg.inner_params} parameters (eq. 1)")
     print(f"3. Run it in {args.trials} new scenes per colour (new positions, new distractors)")
     wins = base_wins = 0
     rows, labels, gif = [], [], None
     for i, (colour, d) in enumerate(demos.items()):
         demo = imitation.prepare_demos(d["images"], d["states"], d["actions"], max_torque)
-        adapted = imitation.adapt(params, demo, cfg.alpha, cfg.inner_steps)
+        adapted = imitation.adapt(params, demo, cfg.alpha, cfg.inner_steps, inner_only(cfg))
         for j in range(args.trials):
             seed = 10_000_019 + args.seed * 1000 + 10 * i + j
             r = imitation.rollout(adapted, world, seed, colour)

@@ -41,7 +41,7 @@ def world_config_of(metadata):
 
 
 def one_shot_success(params, dataset, trials_per_colour=10, alpha=0.001, steps=3, seed=0,
-                     adapt=True, progress=True):
+                     adapt=True, progress=True, only=None):
     """Success over `trials_per_colour` trials for each task (colour) of `dataset`.
 
     Trial j of task i adapts on demo j % K of that task and acts in a fresh scene (seeded apart from
@@ -61,7 +61,7 @@ def one_shot_success(params, dataset, trials_per_colour=10, alpha=0.001, steps=3
         colour, won = int(dataset["task_colours"][i]), 0
         for j in range(trials_per_colour):
             demo = tuple(a[i, j % k] for a in demos)
-            policy = imitation.adapt(params, demo, alpha, steps) if adapt else params
+            policy = imitation.adapt(params, demo, alpha, steps, only) if adapt else params
             trial_seed = EVAL_SEED_OFFSET + seed * 100_000 + i * 1000 + j
             won += imitation.rollout(policy, world, trial_seed, colour)["success"]
             bar.update()
@@ -73,8 +73,31 @@ def one_shot_success(params, dataset, trials_per_colour=10, alpha=0.001, steps=3
             "ci95": wilson_interval(wins, trials), "per_colour": per_colour}
 
 
+def adaptation_gain(params, dataset, alpha=0.001, steps=3, pairs=5, only=None):
+    """Does adapting on one demo help on ANOTHER demo of the same colour? (Cheap, and far less noisy
+    than rollouts.) For each task and j < pairs: adapt on demo j, score eq. (2) on demo j + 1.
+
+    Returns {"before": mean loss of the unadapted policy on demo j + 1, "after": the same after
+    adapting on demo j, "pairs": how many (demo, demo) pairs were scored}.
+    """
+    n, k = dataset["images"].shape[:2]
+    pairs = min(pairs, k - 1)
+    if pairs < 1:
+        raise ValueError(f"adaptation_gain needs >= 2 demos per task; the dataset has {k}")
+    world_cfg = world_config_of(dataset["metadata"])
+    demos = imitation.prepare_demos(dataset["images"][:, :pairs + 1], dataset["states"][:, :pairs + 1],
+                                    dataset["actions"][:, :pairs + 1], world_cfg.arm.max_torque)
+    before, after = [], []
+    for i in range(n):
+        for j in range(pairs):
+            adapt_demo, eval_demo = (tuple(a[i, j] for a in demos), tuple(a[i, j + 1] for a in demos))
+            before.append(float(imitation.imitation_loss(params, eval_demo)))
+            after.append(float(imitation.imitation_loss(imitation.adapt(params, adapt_demo, alpha, steps, only), eval_demo)))
+    return {"before": sum(before) / len(before), "after": sum(after) / len(after), "pairs": len(before)}
+
+
 def main(argv=None):
-    from oneshot.train import load_checkpoint
+    from oneshot.train import inner_only, load_checkpoint
     p = argparse.ArgumentParser(prog="python -m oneshot.evaluate", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoint", help="a checkpoint written by `python -m oneshot.train`")
@@ -89,16 +112,22 @@ def main(argv=None):
     args = p.parse_args(argv)
     ckpt = load_checkpoint(args.checkpoint)
     params, cfg = ckpt["params"], ckpt["config"]
+    only = inner_only(cfg)
     results = {}
     for name, path in (("heldout", args.heldout), ("train", args.train)):
         if not path:
             continue
         dataset = data.load(path)
-        r = one_shot_success(params, dataset, args.trials, cfg.alpha, cfg.inner_steps, args.seed)
+        r = one_shot_success(params, dataset, args.trials, cfg.alpha, cfg.inner_steps, args.seed, only=only)
         lo, hi = r["ci95"]
         print(f"{name} colours: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
               f"95% CI [{lo:.3f}, {hi:.3f}]")
         results[name] = r
+        if name == "heldout":
+            g = adaptation_gain(params, dataset, cfg.alpha, cfg.inner_steps, only=only)
+            print(f"heldout colours: eq. (2) loss on a second demo {g['before']:.3f} before adapting on "
+                  f"one demo, {g['after']:.3f} after ({g['pairs']} pairs)")
+            results["adaptation_gain"] = g
         if args.unadapted and name == "heldout":
             u = one_shot_success(params, dataset, args.trials, cfg.alpha, cfg.inner_steps, args.seed, adapt=False)
             lo, hi = u["ci95"]
@@ -108,7 +137,7 @@ def main(argv=None):
     if args.json:
         with open(args.json, "w") as f:
             json.dump({k: dict(v, per_colour={str(c): x for c, x in v["per_colour"].items()})
-                       for k, v in results.items()}, f, indent=1)
+                       if "per_colour" in v else v for k, v in results.items()}, f, indent=1)
     return results
 
 

@@ -58,9 +58,10 @@ def sample_meta_batch(demos, rng, meta_batch=5):
     return adapt, evaluate
 
 
-def adapt(params, demo, alpha=0.001, steps=3):
-    """One-shot adaptation (eq. 1) to a single demo (images, states, actions) in network units."""
-    return maml.inner_update(params, demo, imitation_loss, alpha, steps)
+def adapt(params, demo, alpha=0.001, steps=3, only=None):
+    """One-shot adaptation (eq. 1) to a single demo (images, states, actions) in network units.
+    only: None (adapt every parameter) or key prefixes of the parameters that adapt (maml.inner_update)."""
+    return maml.inner_update(params, demo, imitation_loss, alpha, steps, only=only)
 
 
 def act(params, obs, max_torque):
@@ -85,6 +86,6 @@ def rollout(params, world, seed, target_colour):
             "images": np.stack(images), "end_effector": np.stack(ee), "scene": info["scene"]}
 
 
-def one_shot_trial(params, demo, world, seed, target_colour, alpha=0.001, steps=3):
+def one_shot_trial(params, demo, world, seed, target_colour, alpha=0.001, steps=3, only=None):
     """Meta-test (Section III-B): adapt on ONE demo (network units), then act in a new scene."""
-    return rollout(adapt(params, demo, alpha, steps), world, seed, target_colour)
+    return rollout(adapt(params, demo, alpha, steps, only), world, seed, target_colour)

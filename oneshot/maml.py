@@ -36,7 +36,16 @@ def _check_step(alpha, steps, inner_clip):
     return alpha, inner_clip
 
 
-def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False, inner_clip=None):
+def adapted_keys(params, only=None):
+    """The keys eq. (1) updates: all of them (only=None), or those starting with one of the prefixes
+    in `only` (e.g. ("conv",): adapt the convolution layers only; the rest stays shared)."""
+    keys = [k for k in params if only is None or k.startswith(tuple(only))]
+    if not keys:
+        raise ValueError(f"no parameter starts with any of {tuple(only)}; parameters are {list(params)}")
+    return keys
+
+
+def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False, inner_clip=None, only=None):
     """Adapt parameters to one demo by gradient descent: paper eq. (1), repeated `steps` times.
 
         theta' = theta - alpha * grad_theta L(theta, demo)
@@ -52,12 +61,16 @@ def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False,
         "first-order MAML" approximation, so d theta' / d theta = I.
     inner_clip: if a number c, clip each inner-gradient element to [-c, c] before the step (the
         reference MIL code does this when its `clip` flag is on); None = plain eq. (1).
+    only: None (MIL: every parameter adapts) or key prefixes of the parameters that adapt
+        (`adapted_keys`); the others keep their values.
     Returns a new dict with the same keys, shapes and dtypes. With first_order=False the result is
     differentiable (to any order) with respect to `params` by autograd.
     """
     alpha, inner_clip = _check_step(alpha, steps, inner_clip)
-    grad_loss = grad(loss_fn)
-    adapted = params
+    keys = adapted_keys(params, only)
+    fixed = {k: v for k, v in params.items() if k not in keys}
+    grad_loss = grad(lambda sub, d: loss_fn({**fixed, **sub}, d))
+    adapted = {k: params[k] for k in keys}
     for _ in range(steps):
         if first_order:
             # Stop-gradient: evaluate the gradient on the raw values, off the outer autograd tape.
@@ -69,10 +82,10 @@ def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False,
         if inner_clip is not None:
             g = {k: np.clip(v, -inner_clip, inner_clip) for k, v in g.items()}
         adapted = {k: adapted[k] - alpha * g[k] for k in adapted}
-    return adapted
+    return {**fixed, **adapted}
 
 
-def meta_objective(params, tasks, loss_fn, alpha, steps, first_order=False, inner_clip=None):
+def meta_objective(params, tasks, loss_fn, alpha, steps, first_order=False, inner_clip=None, only=None):
     """The MAML meta-objective: mean over tasks of the post-adaptation loss (paper Section II).
 
         L_meta(theta) = (1/N) sum_i L(theta - alpha grad L(theta, adapt_demo_i), eval_demo_i)
@@ -83,7 +96,7 @@ def meta_objective(params, tasks, loss_fn, alpha, steps, first_order=False, inne
 
     params: dict of arrays, not modified.
     tasks: sequence of (adapt_demo, eval_demo) pairs, one per task in the meta-batch.
-    loss_fn, alpha, steps, first_order, inner_clip: as in `inner_update`.
+    loss_fn, alpha, steps, first_order, inner_clip, only: as in `inner_update`.
     Returns a scalar of the parameters' dtype.
     """
     if len(tasks) == 0:
@@ -93,7 +106,7 @@ def meta_objective(params, tasks, loss_fn, alpha, steps, first_order=False, inne
         if len(task) != 2:
             raise ValueError(f"each task must be a pair (adapt_demo, eval_demo); got {len(task)} items")
         adapt_demo, eval_demo = task
-        adapted = inner_update(params, adapt_demo, loss_fn, alpha, steps, first_order, inner_clip)
+        adapted = inner_update(params, adapt_demo, loss_fn, alpha, steps, first_order, inner_clip, only)
         total = total + loss_fn(adapted, eval_demo)
     return total / len(tasks)
 
@@ -101,7 +114,7 @@ def meta_objective(params, tasks, loss_fn, alpha, steps, first_order=False, inne
 _value_and_grad_meta = value_and_grad(meta_objective)  # gradient w.r.t. argument 0, `params`
 
 
-def meta_gradient(params, tasks, loss_fn, alpha, steps, first_order=False, inner_clip=None):
+def meta_gradient(params, tasks, loss_fn, alpha, steps, first_order=False, inner_clip=None, only=None):
     """Value and gradient of `meta_objective` with respect to `params` (paper Section II).
 
     With first_order=False this differentiates through the inner updates, so Hessian-vector
@@ -111,7 +124,7 @@ def meta_gradient(params, tasks, loss_fn, alpha, steps, first_order=False, inner
 
     Returns (value, grads): value a scalar, grads a dict with the keys, shapes and dtypes of params.
     """
-    return _value_and_grad_meta(params, tasks, loss_fn, alpha, steps, first_order, inner_clip)
+    return _value_and_grad_meta(params, tasks, loss_fn, alpha, steps, first_order, inner_clip, only)
 
 
 def clip_gradients(grads, limit=10.0):
@@ -126,7 +139,7 @@ def clip_gradients(grads, limit=10.0):
     return {k: np.clip(g, -limit, limit) for k, g in grads.items()}
 
 
-def meta_objective_batched(params, adapt, evaluate, loss_tasks, alpha, steps, first_order=False):
+def meta_objective_batched(params, adapt, evaluate, loss_tasks, alpha, steps, first_order=False, only=None):
     """`meta_objective` for a whole meta-batch in one computation graph (same value, faster).
 
     Each of the B tasks gets its own copy of the parameters (a leading task axis). Task b's loss
@@ -138,16 +151,19 @@ def meta_objective_batched(params, adapt, evaluate, loss_tasks, alpha, steps, fi
     params: dict of arrays (no task axis). adapt, evaluate: batched demos, opaque here, with B tasks.
     loss_tasks(params_b, demos) -> scalar: the SUM over tasks of eq. (2), where every array of params_b
         has a leading task axis of size B.
+    only: as in `inner_update`; parameters that do not adapt stay shared (no task axis).
     Returns the mean over tasks of the post-adaptation loss, like `meta_objective`.
     """
     alpha, _ = _check_step(alpha, steps, None)
     B = _batch_size(adapt)
-    adapted = {k: np.ones((B,) + (1,) * np.ndim(v), dtype=v.dtype) * v for k, v in params.items()}
-    grad_loss = grad(loss_tasks)
+    keys = adapted_keys(params, only)
+    fixed = {k: v for k, v in params.items() if k not in keys}
+    adapted = {k: np.ones((B,) + (1,) * np.ndim(params[k]), dtype=params[k].dtype) * params[k] for k in keys}
+    grad_loss = grad(lambda sub, d: loss_tasks({**fixed, **sub}, d))
     for _ in range(steps):
         g = grad_loss({k: getval(v) for k, v in adapted.items()} if first_order else adapted, adapt)
         adapted = {k: adapted[k] - alpha * g[k] for k in adapted}
-    return loss_tasks(adapted, evaluate) / B
+    return loss_tasks({**fixed, **adapted}, evaluate) / B
 
 
 def _batch_size(demos):

@@ -35,6 +35,26 @@ def test_batched_meta_objective_equals_the_per_task_loop(rng):
             np.testing.assert_allclose(g2[k], g1[k], rtol=1e-8, atol=1e-12)
 
 
+def test_adapting_only_the_convolutions_leaves_the_rest_and_matches_the_loop(rng):
+    params = network.init_params(CFG, rng, dtype=np.float64)
+    adapt, evaluate = _demos(rng, B=3), _demos(rng, B=3)
+    adapted = imitation.adapt(params, tuple(a[0] for a in adapt), 0.05, 2, only=("conv",))
+    for k in params:
+        assert (np.array_equal(adapted[k], params[k])) != k.startswith("conv"), k
+    # batched (non-adapted parameters shared across tasks) == per-task loop, value and gradient
+    tasks = [(tuple(a[b] for a in adapt), tuple(e[b] for e in evaluate)) for b in range(3)]
+    v1, g1 = maml.meta_gradient(params, tasks, imitation.imitation_loss, 0.05, 2, only=("conv",))
+    v2, g2 = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.05, 2, only=("conv",))
+    assert v2 == pytest.approx(v1, rel=1e-10)
+    for k in params:
+        np.testing.assert_allclose(g2[k], g1[k], rtol=1e-8, atol=1e-12)
+    # and it is a different objective from adapting everything
+    v_all, _ = maml.meta_gradient(params, tasks, imitation.imitation_loss, 0.05, 2)
+    assert v_all != pytest.approx(v1, rel=1e-6)
+    with pytest.raises(ValueError, match="no parameter starts with"):
+        imitation.adapt(params, tuple(a[0] for a in adapt), 0.05, 1, only=("nothing",))
+
+
 def test_second_order_meta_gradient_matches_finite_differences(rng):
     params = network.init_params(CFG, rng, dtype=np.float64)
     adapt, evaluate = _demos(rng, B=2), _demos(rng, B=2)
