@@ -45,6 +45,12 @@ def adapted_keys(params, only=None):
     return keys
 
 
+def _split(params, only):
+    """(fixed, keys): the parameters eq. (1) leaves alone, and the keys it adapts."""
+    keys = adapted_keys(params, only)
+    return {k: v for k, v in params.items() if k not in keys}, keys
+
+
 def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False, inner_clip=None, only=None):
     """Adapt parameters to one demo by gradient descent: paper eq. (1), repeated `steps` times.
 
@@ -67,8 +73,7 @@ def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False,
     differentiable (to any order) with respect to `params` by autograd.
     """
     alpha, inner_clip = _check_step(alpha, steps, inner_clip)
-    keys = adapted_keys(params, only)
-    fixed = {k: v for k, v in params.items() if k not in keys}
+    fixed, keys = _split(params, only)
     grad_loss = grad(lambda sub, d: loss_fn({**fixed, **sub}, d))
     adapted = {k: params[k] for k in keys}
     for _ in range(steps):
@@ -156,8 +161,7 @@ def meta_objective_batched(params, adapt, evaluate, loss_tasks, alpha, steps, fi
     """
     alpha, _ = _check_step(alpha, steps, None)
     B = _batch_size(adapt)
-    keys = adapted_keys(params, only)
-    fixed = {k: v for k, v in params.items() if k not in keys}
+    fixed, keys = _split(params, only)
     adapted = {k: np.ones((B,) + (1,) * np.ndim(params[k]), dtype=params[k].dtype) * params[k] for k in keys}
     grad_loss = grad(lambda sub, d: loss_tasks({**fixed, **sub}, d))
     for _ in range(steps):

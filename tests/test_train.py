@@ -124,11 +124,11 @@ def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, caps
     assert r["trials"] == 2 * 3 and 0 <= r["successes"] <= 6
     assert r["ci95"][0] <= r["rate"] <= r["ci95"][1]
     assert "heldout colours: one-shot success" in capsys.readouterr().out
-    assert json.load(open(out))["heldout"]["trials"] == 6
+    with open(out) as f:
+        written = json.load(f)
+    assert written["heldout"]["trials"] == 6 and written["adaptation_gain"]["pairs"] == 2
     assert results["heldout_unadapted"]["trials"] == 6
     assert results["adaptation_gain"]["pairs"] == 2
-    with open(out) as f:
-        assert json.load(f)["adaptation_gain"]["pairs"] == 2
     # the trial scenes are not the demos' scenes
     heldout = data.load(tiny.heldout_data)
     world_seeds = {evaluate.EVAL_SEED_OFFSET + i * 1000 + j for i in range(2) for j in range(3)}
