@@ -183,12 +183,21 @@ def col2im(cols, x_shape, kernel, stride, padding):
     n, h, w, c = x_shape
     h_out = (h + 2 * padding - kernel) // stride + 1
     w_out = (w + 2 * padding - kernel) // stride + 1
-    cols = cols.reshape(n, h_out, w_out, kernel, kernel, c)
-    x_pad = np.zeros((n, h + 2 * padding, w + 2 * padding, c), cols.dtype)
-    for dy in range(kernel):  # loop over the kernel offsets only: each is one strided, vectorised add
-        for dx in range(kernel):
-            rows, columns = slice(dy, dy + stride * h_out, stride), slice(dx, dx + stride * w_out, stride)
-            x_pad[:, rows, columns, :] += cols[:, :, :, dy, dx, :]
+    cols = cols.reshape(n, h_out, w_out, kernel, kernel * c)
+    # Patch (i, j)'s tap (dy, dx) lands on padded pixel (stride*i + dy, stride*j + dx). The `stride`
+    # taps dx = q*stride ... q*stride + stride-1 of one row land side by side: viewing the padded image
+    # as (N, H_pad, W_pad / stride, stride * C), they are ONE contiguous run per patch, so a whole
+    # block of taps is one vectorised add with long inner loops (1.45x faster than one add per tap on
+    # (20 * 3, 16, 16, 40) images, measured; see docs/network.md, "Speed").
+    blocks = (kernel - 1) // stride + 1                       # blocks of taps along dx
+    width = stride * max(w_out + blocks - 1, -(-(w + 2 * padding) // stride))
+    x_pad = np.zeros((n, h + 2 * padding, width // stride, stride * c), cols.dtype)
+    for dy in range(kernel):
+        rows = slice(dy, dy + stride * h_out, stride)
+        for q in range(blocks):
+            m = min(stride, kernel - q * stride) * c            # taps in this block, times C
+            x_pad[:, rows, q : q + w_out, :m] += cols[:, :, :, dy, q * stride * c : q * stride * c + m]
+    x_pad = x_pad.reshape(n, h + 2 * padding, width, c)
     return x_pad[:, padding : padding + h, padding : padding + w, :]
 
 

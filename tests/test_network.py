@@ -65,14 +65,16 @@ def test_conv2d_matches_naive_loops(stride, size):
     np.testing.assert_allclose(conv2d(x, w, b, stride), naive_conv2d(x, w, b, stride), rtol=1e-12, atol=1e-12)
 
 
-@pytest.mark.parametrize("shape, stride", [((2, 7, 6, 3), 2), ((1, 8, 8, 2), 2), ((2, 5, 5, 3), 1)])
-def test_im2col_col2im_are_adjoint(shape, stride):
+@pytest.mark.parametrize("shape, kernel, stride", [((2, 7, 6, 3), 3, 2), ((1, 8, 8, 2), 3, 2), ((2, 5, 5, 3), 3, 1),
+                                                   ((2, 9, 8, 2), 5, 3), ((1, 6, 7, 2), 5, 2), ((1, 4, 4, 1), 1, 2)])
+def test_im2col_col2im_are_adjoint(shape, kernel, stride):
     # <im2col(x), y> == <x, col2im(y)> for every x, y: col2im is exactly the transpose of im2col.
+    # Kernels that are not a multiple of the stride exercise col2im's partial blocks of taps.
     rng = np.random.default_rng(2)
     x = rng.standard_normal(shape)
-    y = rng.standard_normal(im2col(x, 3, stride, 1).shape)
-    lhs = np.sum(im2col(x, 3, stride, 1) * y)
-    rhs = np.sum(x * col2im(y, shape, 3, stride, 1))
+    y = rng.standard_normal(im2col(x, kernel, stride, kernel // 2).shape)
+    lhs = np.sum(im2col(x, kernel, stride, kernel // 2) * y)
+    rhs = np.sum(x * col2im(y, shape, kernel, stride, kernel // 2))
     assert lhs == pytest.approx(rhs, rel=1e-12)
 
 
