@@ -140,6 +140,12 @@ def main(argv=None):
     m.add_argument("--iterations", type=int, default=20)
     m.add_argument("--profile", default="default")
     m.add_argument("--first-order", action="store_true", help="time the first-order approximation")
+    m.add_argument("--inner-steps", type=int, default=None, help="override the profile's inner steps")
+    m.add_argument("--inner-params", choices=("all", "conv", "conv0"), default=None,
+                   help="override which parameters the inner steps adapt")
+    m.add_argument("--meta-batch", type=int, default=None, help="override the profile's meta-batch")
+    m.add_argument("--shards", type=int, default=None,
+                   help="override the profile's shards (processes sharing the meta-batch; 1 = one process)")
     v = sub.add_parser("privileged", help="ceiling: behavioural cloning given the target's position or colour")
     v.add_argument("--given", choices=("position", "colour"), default="colour")
     v.add_argument("--steps", type=int, default=3000)
@@ -157,8 +163,10 @@ def main(argv=None):
                                   seed=args.seed, train_data=args.train_data)
     else:
         from oneshot.train import bench_meta_iteration
-        result = bench_meta_iteration(args.iterations, args.profile,
-                                      **({"first_order": True} if args.first_order else {}))
+        overrides = {k: v for k, v in (("first_order", args.first_order or None), ("inner_steps", args.inner_steps),
+                                       ("inner_params", args.inner_params), ("meta_batch", args.meta_batch),
+                                       ("shards", args.shards)) if v is not None}
+        result = bench_meta_iteration(args.iterations, args.profile, **overrides)
     main_mb, worker_mb = peak_memory_mb()
     result["peak_memory_mb"] = round(main_mb, 1)
     result["peak_worker_memory_mb"] = round(worker_mb, 1)

@@ -15,7 +15,7 @@ from tqdm import tqdm
 from oneshot import data, imitation
 from oneshot.arm import ArmConfig
 from oneshot.palette import PaletteConfig
-from oneshot.world import ReachWorld, WorldConfig
+from oneshot.world import ReachWorld, WorldConfig, closest_object
 
 EVAL_SEED_OFFSET = 1_000_003   # trial scenes never reuse a dataset's scene seeds
 
@@ -46,7 +46,9 @@ def one_shot_success(params, dataset, trials_per_colour=10, alpha=0.001, steps=3
 
     Trial j of task i adapts on demo j % K of that task and acts in a fresh scene (seeded apart from
     every dataset seed). adapt=False runs the unadapted policy (a check that adaptation matters).
-    Returns {"successes", "trials", "rate", "ci95": (lo, hi), "per_colour": {colour: rate}}.
+    Returns {"successes", "trials", "rate", "ci95": (lo, hi), "per_colour": {colour: rate},
+    "failures": {"near_miss": n, "wrong_object": m}}: a failed trial is a near miss when the end
+    effector's closest object over the final fifth was the target, else it went to a distractor.
     """
     meta = dataset["metadata"]
     world_cfg = world_config_of(meta)
@@ -55,7 +57,7 @@ def one_shot_success(params, dataset, trials_per_colour=10, alpha=0.001, steps=3
     k = min(k, trials_per_colour)                     # only these demos are used: convert just them
     demos = imitation.prepare_demos(dataset["images"][:, :k], dataset["states"][:, :k],
                                     dataset["actions"][:, :k], world_cfg.arm.max_torque)
-    wins, per_colour = 0, {}
+    wins, per_colour, failures = 0, {}, {"near_miss": 0, "wrong_object": 0}
     bar = tqdm(total=n * trials_per_colour, desc=f"one-shot trials ({meta['split']})", disable=not progress)
     for i in range(n):
         colour, won = int(dataset["task_colours"][i]), 0
@@ -63,14 +65,18 @@ def one_shot_success(params, dataset, trials_per_colour=10, alpha=0.001, steps=3
             demo = tuple(a[i, j % k] for a in demos)
             policy = imitation.adapt(params, demo, alpha, steps, only) if adapt else params
             trial_seed = EVAL_SEED_OFFSET + seed * 100_000 + i * 1000 + j
-            won += imitation.rollout(policy, world, trial_seed, colour)["success"]
+            trial = imitation.rollout(policy, world, trial_seed, colour)
+            won += trial["success"]
+            if not trial["success"]:
+                closest, _ = closest_object(trial["end_effector"], trial["scene"].positions)
+                failures["near_miss" if closest == trial["scene"].target else "wrong_object"] += 1
             bar.update()
         per_colour[colour] = won / trials_per_colour
         wins += won
     bar.close()
     trials = n * trials_per_colour
     return {"successes": wins, "trials": trials, "rate": wins / trials,
-            "ci95": wilson_interval(wins, trials), "per_colour": per_colour}
+            "ci95": wilson_interval(wins, trials), "per_colour": per_colour, "failures": failures}
 
 
 def adaptation_gain(params, dataset, alpha=0.001, steps=3, pairs=5, only=None):
@@ -121,7 +127,8 @@ def main(argv=None):
         r = one_shot_success(params, dataset, args.trials, cfg.alpha, cfg.inner_steps, args.seed, only=only)
         lo, hi = r["ci95"]
         print(f"{name} colours: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
-              f"95% CI [{lo:.3f}, {hi:.3f}]")
+              f"95% CI [{lo:.3f}, {hi:.3f}]; failures: {r['failures']['near_miss']} near misses (closest "
+              f"to the target, but not within reach), {r['failures']['wrong_object']} at a distractor")
         results[name] = r
         if name == "heldout":
             g = adaptation_gain(params, dataset, cfg.alpha, cfg.inner_steps, only=only)

@@ -46,7 +46,8 @@ class TrainConfig:
     first_order: bool = False                # first-order MAML approximation, for comparison
     bias_transform: int = 0                  # size of the bias-transformation vector (0: off)
     feature_points: bool = False             # spatial soft-argmax instead of flattening (an option)
-    inner_params: str = "all"                # which parameters eq. (1) adapts: "all" (MIL) or "conv"
+    inner_params: str = "all"                # which parameters eq. (1) adapts: "all" (MIL), "conv" (the
+                                             # convolutions) or "conv0" (the first convolution only)
     seed: int = 0                            # parameters and meta-batch sampling
     log_every: int = 10
     eval_every: int = 500                    # held-out one-shot success during training
@@ -62,10 +63,11 @@ _MIL = TrainConfig()
 PROFILES = {
     # The fast profile, and the one that works here (docs/training.md, "Adapting only the
     # convolutions"): feature points and a bias transformation (MIL's released code), and ONE inner
-    # step of alpha = 0.3 on the convolution layers only, so that adaptation can change WHAT the
-    # policy looks for (a colour) but not WHERE it goes (the demo's positions).
-    "default": dataclasses.replace(_MIL, bias_transform=10, feature_points=True, inner_params="conv",
-                                   inner_steps=1, alpha=0.3, iterations=6000, eval_every=1000),
+    # step of alpha = 0.3 on the FIRST convolution layer only, so that adaptation can change WHAT the
+    # policy looks for (a colour) but not WHERE it goes (the demo's positions); adapting one layer
+    # makes an iteration 1.2-1.3x faster than adapting all three: 9000 iterations in about 20 min.
+    "default": dataclasses.replace(_MIL, bias_transform=10, feature_points=True, inner_params="conv0",
+                                   inner_steps=1, alpha=0.3, iterations=9000, eval_every=1000),
     "mil": _MIL,                                                     # the paper's inner loop, 2000 it.
     "bias": dataclasses.replace(_MIL, bias_transform=10),
     "points": dataclasses.replace(_MIL, bias_transform=10, feature_points=True),
@@ -78,7 +80,7 @@ PROFILES = {
 
 def inner_only(cfg):
     """cfg.inner_params as `maml.inner_update`'s `only`: None (every parameter) or key prefixes."""
-    choices = {"all": None, "conv": ("conv",)}
+    choices = {"all": None, "conv": ("conv",), "conv0": ("conv0_",)}
     if cfg.inner_params not in choices:
         raise ValueError(f"inner_params must be one of {sorted(choices)}; got {cfg.inner_params!r}")
     return choices[cfg.inner_params]
@@ -363,8 +365,8 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
     s = float(np.median(times[2:]))
     passes = 3 * cfg.inner_steps + 3 if cfg.first_order else 3 * (3 * cfg.inner_steps + 1)
     flops = B * passes * network.count_flops(net_cfg, T)
-    return {"profile": profile, "meta_batch": B, "inner_steps": cfg.inner_steps, "T": T,
-            "image_size": image_size, "first_order": cfg.first_order, "shards": cfg.shards,
+    return {"profile": profile, "meta_batch": B, "inner_steps": cfg.inner_steps, "inner_params": cfg.inner_params,
+            "T": T, "image_size": image_size, "first_order": cfg.first_order, "shards": cfg.shards,
             "seconds_per_iteration": round(s, 4),
             "gflop_per_iteration": round(flops / 1e9, 2), "gflop_per_second": round(flops / 1e9 / s, 1)}
 

@@ -71,6 +71,19 @@ def is_success(end_effector, target, success_radius=0.05):
     return bool(np.min(np.linalg.norm(window - np.asarray(target), axis=-1)) <= success_radius)
 
 
+def closest_object(end_effector, positions):
+    """The object the end effector came closest to over the final fifth, and that distance.
+
+    end_effector: (T, 2) positions after each step, metres; positions: (n, 2) object centres, metres.
+    Returns (index into positions, distance in metres). Tells apart the two ways a trial can fail: a
+    near miss (closest to the target, but not within the success radius) and a wrong object.
+    """
+    end_effector, positions = np.asarray(end_effector), np.asarray(positions)
+    window = end_effector[-success_window(len(end_effector)):]
+    d = np.linalg.norm(window[:, None, :] - positions[None], axis=-1).min(axis=0)  # (n,) min over window
+    return int(np.argmin(d)), float(d.min())
+
+
 @dataclass(frozen=True)
 class Scene:
     """One arrangement: colours (n,) palette indices, positions (n, 2) metres, target index."""

@@ -7,7 +7,7 @@ import os
 import numpy as np
 import pytest
 
-from oneshot import data, evaluate, imitation, maml, train
+from oneshot import data, evaluate, imitation, maml, network, train
 
 
 @pytest.fixture
@@ -86,6 +86,15 @@ def test_unknown_inner_params_is_refused_before_training(tiny, tmp_path):
     assert not (tmp_path / "run").exists()
 
 
+def test_inner_params_choose_which_parameters_adapt():
+    net = network.init_params(network.NetworkConfig(bias_transform=4, feature_points=True), np.random.default_rng(0))
+    adapted = {name: maml.adapted_keys(net, train.inner_only(dataclasses.replace(train.TrainConfig(), inner_params=name)))
+               for name in ("all", "conv", "conv0")}
+    assert adapted["all"] == list(net)
+    assert adapted["conv"] == ["conv0_w", "conv0_b", "conv1_w", "conv1_b", "conv2_w", "conv2_b"]
+    assert adapted["conv0"] == ["conv0_w", "conv0_b"]
+
+
 def test_learning_rate_schedules():
     cfg = dataclasses.replace(train.TrainConfig(), lr=1e-3, iterations=100)
     assert [train.learning_rate(cfg, i) for i in (0, 50, 99)] == [1e-3] * 3
@@ -123,6 +132,7 @@ def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, caps
     r = results["heldout"]
     assert r["trials"] == 2 * 3 and 0 <= r["successes"] <= 6
     assert r["ci95"][0] <= r["rate"] <= r["ci95"][1]
+    assert sum(r["failures"].values()) == r["trials"] - r["successes"]   # every failure gets a kind
     assert "heldout colours: one-shot success" in capsys.readouterr().out
     with open(out) as f:
         written = json.load(f)
@@ -188,3 +198,13 @@ def test_demo_adapts_a_checkpoint_and_reports_counts(tiny, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "one-shot success on held-out colours" in out and "expert success: 12/12" in out
     assert (tmp_path / "out" / "one_shot.png").exists()
+
+
+def test_maml_benchmark_reports_the_settings_it_timed(capsys):
+    from oneshot import benchmark
+    benchmark.main(["maml", "--profile", "tiny", "--iterations", "1", "--inner-steps", "1", "--shards", "1",
+                    "--inner-params", "conv0", "--meta-batch", "3"])
+    result = json.loads(capsys.readouterr().out)
+    assert (result["inner_steps"], result["inner_params"], result["shards"], result["meta_batch"],
+            result["first_order"]) == (1, "conv0", 1, 3, False)
+    assert result["seconds_per_iteration"] > 0 and result["gflop_per_second"] > 0

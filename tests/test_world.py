@@ -6,7 +6,7 @@ import pytest
 
 from oneshot import palette
 from oneshot.render import world_to_pixels
-from oneshot.world import ReachWorld, Scene, WorldConfig, is_success, observation_state, sample_scene
+from oneshot.world import ReachWorld, Scene, WorldConfig, closest_object, is_success, observation_state, sample_scene
 
 
 def test_a_disc_of_colour_c_appears_where_the_scene_says_in_colour_c():
@@ -95,6 +95,15 @@ def test_success_criterion_uses_the_final_fifth():
     boundary = far.copy()
     boundary[-1] = [0.1, 0.05]
     assert is_success(boundary, target)            # "within 0.05": the boundary counts
+
+
+def test_closest_object_looks_at_the_final_fifth_only():
+    positions = np.array([[0.1, 0.0], [0.0, 0.15], [-0.1, 0.0]])
+    path = np.tile([0.0, 0.0], (20, 1))
+    path[:16] = [-0.1, 0.01]                       # sits on object 2, but only before the final fifth
+    path[16:] = [0.0, 0.12]                        # then ends 0.03 m from object 1
+    index, distance = closest_object(path, positions)
+    assert index == 1 and distance == pytest.approx(0.03)
 
 
 def test_step_api_reward_truncation_and_success_flag():
