@@ -187,8 +187,9 @@ def col2im(cols, x_shape, kernel, stride, padding):
     # Patch (i, j)'s tap (dy, dx) lands on padded pixel (stride*i + dy, stride*j + dx). The `stride`
     # taps dx = q*stride ... q*stride + stride-1 of one row land side by side: viewing the padded image
     # as (N, H_pad, W_pad / stride, stride * C), they are ONE contiguous run per patch, so a whole
-    # block of taps is one vectorised add with long inner loops (1.45x faster than one add per tap on
-    # (20 * 3, 16, 16, 40) images, measured; see docs/network.md, "Speed").
+    # block of taps is one vectorised add with longer inner loops (about 1.3x faster than one add per
+    # tap on (60, 16, 16, 40) activations; docs/network.md, "Speed"). Same order of additions as one
+    # tap at a time, so the same bits.
     blocks = (kernel - 1) // stride + 1                       # blocks of taps along dx
     width = stride * max(w_out + blocks - 1, -(-(w + 2 * padding) // stride))
     x_pad = np.zeros((n, h + 2 * padding, width // stride, stride * c), cols.dtype)
