@@ -128,6 +128,7 @@ def peak_memory_mb():
 
 
 def main(argv=None):
+    from oneshot.train import INNER_PARAMS, bench_meta_iteration
     p = argparse.ArgumentParser(prog="python -m oneshot.benchmark", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="what", required=True)
@@ -141,7 +142,7 @@ def main(argv=None):
     m.add_argument("--profile", default="default")
     m.add_argument("--first-order", action="store_true", help="time the first-order approximation")
     m.add_argument("--inner-steps", type=int, default=None, help="override the profile's inner steps")
-    m.add_argument("--inner-params", choices=("all", "conv", "conv0"), default=None,
+    m.add_argument("--inner-params", choices=sorted(INNER_PARAMS), default=None,
                    help="override which parameters the inner steps adapt")
     m.add_argument("--meta-batch", type=int, default=None, help="override the profile's meta-batch")
     m.add_argument("--shards", type=int, default=None,
@@ -162,7 +163,6 @@ def main(argv=None):
         result = bench_privileged(args.given, args.steps, trials=args.trials, feature_points=args.feature_points,
                                   seed=args.seed, train_data=args.train_data)
     else:
-        from oneshot.train import bench_meta_iteration
         overrides = {k: v for k, v in (("first_order", args.first_order or None), ("inner_steps", args.inner_steps),
                                        ("inner_params", args.inner_params), ("meta_batch", args.meta_batch),
                                        ("shards", args.shards)) if v is not None}

@@ -3,7 +3,7 @@
 One-shot visual imitation, end to end (paper Sections III-IV):
   1. for every held-out colour (never seen in meta-training) the iLQG expert records ONE demonstration;
   2. the meta-trained policy adapts to that demo by gradient descent (eq. 1; the default profile takes
-     one step on its convolution layers, docs/training.md);
+     one step on its first convolution layer, docs/training.md);
   3. the adapted policy acts in new scenes of that colour (new positions, new distractors).
 Prints the one-shot success rate (with a 95% interval) and the unadapted policy's for contrast, and
 writes pictures to DIR: the demo and the adapted policy side by side (PNG), and one trial (GIF).

@@ -78,12 +78,15 @@ PROFILES = {
 }
 
 
+# TrainConfig.inner_params -> `maml.inner_update`'s `only`: which parameters eq. (1) adapts.
+INNER_PARAMS = {"all": None, "conv": ("conv",), "conv0": ("conv0_",)}
+
+
 def inner_only(cfg):
     """cfg.inner_params as `maml.inner_update`'s `only`: None (every parameter) or key prefixes."""
-    choices = {"all": None, "conv": ("conv",), "conv0": ("conv0_",)}
-    if cfg.inner_params not in choices:
-        raise ValueError(f"inner_params must be one of {sorted(choices)}; got {cfg.inner_params!r}")
-    return choices[cfg.inner_params]
+    if cfg.inner_params not in INNER_PARAMS:
+        raise ValueError(f"inner_params must be one of {sorted(INNER_PARAMS)}; got {cfg.inner_params!r}")
+    return INNER_PARAMS[cfg.inner_params]
 
 
 def learning_rate(cfg, iteration):
