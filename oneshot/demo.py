@@ -31,7 +31,7 @@ def main(argv=None):
     p.add_argument("--trials", type=int, default=3, help="new scenes per held-out colour (default 3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the demos and trial scenes")
     args = p.parse_args(argv)
-    from oneshot.train import inner_only, load_checkpoint
+    from oneshot.train import inner_only, load_checkpoint, policy_params
 
     ckpt = load_checkpoint(args.checkpoint) if os.path.exists(args.checkpoint) else None
     # Demos like the ones the policy was meta-trained on (with the same DART noise, if any).
@@ -55,12 +55,13 @@ def main(argv=None):
         viz.save_atomically(viz.filmstrip([d["images"] for d in list(demos.values())[:4]]),
                             os.path.join(args.out, "expert_demos.png"))
         return None
-    params, cfg = ckpt["params"], ckpt["config"]
+    params, cfg = policy_params(ckpt), ckpt["config"]
     max_torque = world.config.arm.max_torque
 
     # 2-3. Adapt on the one demo, act in new scenes; the unadapted policy for contrast.
     print(f"2. Adapt the meta-trained policy ({ckpt['iteration']} meta-iterations) to each demo: "
-          f"{cfg.inner_steps} gradient step(s) of size {cfg.alpha} on {cfg.inner_params} parameters (eq. 1)")
+          f"{cfg.inner_steps} gradient step(s) of size "
+          f"{'meta-learnt per element' if cfg.learn_alpha else cfg.alpha} on {cfg.inner_params} parameters (eq. 1)")
     print(f"3. Run it in {args.trials} new scenes per colour (new positions, new distractors)")
     wins = base_wins = 0
     rows, labels, gif = [], [], None

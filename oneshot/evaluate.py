@@ -103,7 +103,7 @@ def adaptation_gain(params, dataset, alpha=0.001, steps=3, pairs=5, only=None):
 
 
 def main(argv=None):
-    from oneshot.train import inner_only, load_checkpoint
+    from oneshot.train import inner_only, load_checkpoint, policy_params
     p = argparse.ArgumentParser(prog="python -m oneshot.evaluate", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoint", help="a checkpoint written by `python -m oneshot.train`")
@@ -114,10 +114,12 @@ def main(argv=None):
     p.add_argument("--seed", type=int, default=0, help="seed of the trial scenes")
     p.add_argument("--unadapted", action="store_true",
                    help="also run the policy without adaptation on the held-out colours (does adapting help?)")
+    p.add_argument("--raw", action="store_true",
+                   help="act with the parameters Adam trained, not their moving average (runs with --ema)")
     p.add_argument("--json", default=None, help="also write the results to this JSON file")
     args = p.parse_args(argv)
     ckpt = load_checkpoint(args.checkpoint)
-    params, cfg = ckpt["params"], ckpt["config"]
+    params, cfg = policy_params(ckpt, args.raw), ckpt["config"]
     only = inner_only(cfg)
     results = {}
     for name, path in (("heldout", args.heldout), ("train", args.train)):

@@ -36,19 +36,40 @@ def _check_step(alpha, steps, inner_clip):
     return alpha, inner_clip
 
 
+# Learnt step sizes (Meta-SGD, Li et al. 2017, "Meta-SGD: Learning to Learn Quickly for Few-Shot
+# Learning"): params[STEP_PREFIX + k], an array shaped like params[k], replaces the scalar alpha for
+# parameter k in eq. (1), element by element. They are meta-parameters: the meta-gradient reaches
+# them like any other parameter, and they never enter the model itself.
+STEP_PREFIX = "inner_lr/"
+
+
 def adapted_keys(params, only=None):
     """The keys eq. (1) updates: all of them (only=None), or those starting with one of the prefixes
-    in `only` (e.g. ("conv",): adapt the convolution layers only; the rest stays shared)."""
-    keys = [k for k in params if only is None or k.startswith(tuple(only))]
+    in `only` (e.g. ("conv",): adapt the convolution layers only; the rest stays shared). Learnt step
+    sizes (STEP_PREFIX keys) are never adapted."""
+    keys = [k for k in params if not k.startswith(STEP_PREFIX) and (only is None or k.startswith(tuple(only)))]
     if not keys:
         raise ValueError(f"no parameter starts with any of {tuple(only)}; parameters are {list(params)}")
     return keys
 
 
-def _split(params, only):
-    """(fixed, keys): the parameters eq. (1) leaves alone, and the keys it adapts."""
+def init_step_sizes(params, alpha, only=None):
+    """Learnt step sizes for Meta-SGD: {STEP_PREFIX + k: alpha everywhere, shaped like params[k]} for
+    every key eq. (1) adapts. Add them to params to meta-learn one step size per adapted element."""
+    alpha, _ = _check_step(alpha, 1, None)
+    return {STEP_PREFIX + k: np.full_like(params[k], alpha) for k in adapted_keys(params, only)}
+
+
+def _split(params, only, alpha):
+    """(fixed, keys, steps): the model parameters eq. (1) leaves alone, the keys it adapts, and each
+    adapted key's step size: the learnt array params[STEP_PREFIX + key] if there is one, else alpha."""
     keys = adapted_keys(params, only)
-    return {k: v for k, v in params.items() if k not in keys}, keys
+    learnt = {k[len(STEP_PREFIX):]: v for k, v in params.items() if k.startswith(STEP_PREFIX)}
+    if learnt and set(learnt) != set(keys):
+        raise ValueError(f"learnt step sizes are for {sorted(learnt)} but eq. (1) adapts {sorted(keys)}; "
+                         f"build them with maml.init_step_sizes(params, alpha, only) for the same `only`")
+    fixed = {k: v for k, v in params.items() if k not in keys and not k.startswith(STEP_PREFIX)}
+    return fixed, keys, {k: learnt.get(k, alpha) for k in keys}
 
 
 def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False, inner_clip=None, only=None):
@@ -61,7 +82,8 @@ def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False,
     params: dict of arrays (any shapes), float32 or float64; not modified.
     demo: whatever `loss_fn` takes (in MIL: (images, states, actions) of one demonstration).
     loss_fn: loss_fn(params, demo) -> scalar; must be autograd-differentiable.
-    alpha: inner step size (python float or number).
+    alpha: inner step size (python float or number); learnt step sizes in params (STEP_PREFIX keys,
+        Meta-SGD) replace it element by element.
     steps: number of inner gradient steps (0 returns `params` unchanged).
     first_order: if True, treat each inner gradient as a constant (stop-gradient): the
         "first-order MAML" approximation, so d theta' / d theta = I.
@@ -69,11 +91,11 @@ def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False,
         reference MIL code does this when its `clip` flag is on); None = plain eq. (1).
     only: None (MIL: every parameter adapts) or key prefixes of the parameters that adapt
         (`adapted_keys`); the others keep their values.
-    Returns a new dict with the same keys, shapes and dtypes. With first_order=False the result is
-    differentiable (to any order) with respect to `params` by autograd.
+    Returns a new dict with the model's keys (learnt step sizes dropped), shapes and dtypes. With
+    first_order=False the result is differentiable (to any order) with respect to `params` by autograd.
     """
     alpha, inner_clip = _check_step(alpha, steps, inner_clip)
-    fixed, keys = _split(params, only)
+    fixed, keys, step = _split(params, only, alpha)
     grad_loss = grad(lambda sub, d: loss_fn({**fixed, **sub}, d))
     adapted = {k: params[k] for k in keys}
     for _ in range(steps):
@@ -86,7 +108,7 @@ def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False,
             g = grad_loss(adapted, demo)
         if inner_clip is not None:
             g = {k: np.clip(v, -inner_clip, inner_clip) for k, v in g.items()}
-        adapted = {k: adapted[k] - alpha * g[k] for k in adapted}
+        adapted = {k: adapted[k] - step[k] * g[k] for k in adapted}
     return {**fixed, **adapted}
 
 
@@ -161,12 +183,12 @@ def meta_objective_batched(params, adapt, evaluate, loss_tasks, alpha, steps, fi
     """
     alpha, _ = _check_step(alpha, steps, None)
     B = _batch_size(adapt)
-    fixed, keys = _split(params, only)
+    fixed, keys, step = _split(params, only, alpha)
     adapted = {k: np.ones((B,) + (1,) * np.ndim(params[k]), dtype=params[k].dtype) * params[k] for k in keys}
     grad_loss = grad(lambda sub, d: loss_tasks({**fixed, **sub}, d))
     for _ in range(steps):
         g = grad_loss({k: getval(v) for k, v in adapted.items()} if first_order else adapted, adapt)
-        adapted = {k: adapted[k] - alpha * g[k] for k in adapted}
+        adapted = {k: adapted[k] - step[k] * g[k] for k in adapted}
     return loss_tasks({**fixed, **adapted}, evaluate) / B
 
 

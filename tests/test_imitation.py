@@ -131,3 +131,17 @@ def test_sample_meta_batch_pairs_two_different_demos_of_one_task(rng):
     a, e = adapt[0][:, 0, 0, 0, 0].astype(int), evaluate[0][:, 0, 0, 0, 0].astype(int)
     assert np.all(a // K == e // K) and np.all(a != e)          # same task, different demo
     assert len(set((a // K).tolist())) == 3                      # distinct tasks in the meta-batch
+
+
+def test_learnt_step_sizes_batched_equals_the_per_task_loop(rng):
+    params = network.init_params(CFG, rng, dtype=np.float64)
+    params = {**params, **maml.init_step_sizes(params, 0.05, only=("conv0_",))}
+    params[maml.STEP_PREFIX + "conv0_w"] = params[maml.STEP_PREFIX + "conv0_w"] * rng.uniform(0, 2, params["conv0_w"].shape)
+    adapt, evaluate = _demos(rng, B=3), _demos(rng, B=3)
+    tasks = [(tuple(a[b] for a in adapt), tuple(e[b] for e in evaluate)) for b in range(3)]
+    v1, g1 = maml.meta_gradient(params, tasks, imitation.imitation_loss, 0.0, 1, only=("conv0_",))
+    v2, g2 = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.0, 1, only=("conv0_",))
+    assert v2 == pytest.approx(v1, rel=1e-10)
+    assert g2.keys() == params.keys() and np.abs(g2[maml.STEP_PREFIX + "conv0_w"]).max() > 0
+    for k in params:
+        np.testing.assert_allclose(g2[k], g1[k], rtol=1e-8, atol=1e-12)

@@ -10,7 +10,8 @@ import pytest
 from autograd import grad
 from autograd.test_util import check_grads
 
-from oneshot.maml import clip_gradients, inner_update, meta_gradient, meta_objective
+from oneshot.maml import (STEP_PREFIX, clip_gradients, init_step_sizes, inner_update, meta_gradient,
+                          meta_objective)
 
 
 # ----- a tiny model: 2-layer tanh MLP with a summed squared-error loss (stands in for eq. 2) -----
@@ -221,3 +222,45 @@ def test_bad_settings_raise_actionable_errors():
         meta_objective(params, [], mlp_loss, 0.01, 1)
     with pytest.raises(ValueError, match="pair"):
         meta_objective(params, [(demo,)], mlp_loss, 0.01, 1)
+
+
+# ----- learnt step sizes (Meta-SGD) -----
+
+def test_learnt_step_sizes_equal_to_alpha_reproduce_scalar_alpha_and_are_dropped():
+    rng = np.random.default_rng(9)
+    params, tasks = make_mlp(rng), make_tasks(rng)
+    with_steps = {**params, **init_step_sizes(params, 0.05, only=("W",))}
+    assert sorted(k for k in with_steps if k.startswith(STEP_PREFIX)) == [STEP_PREFIX + "W1", STEP_PREFIX + "W2"]
+    adapted = inner_update(with_steps, tasks[0][0], mlp_loss, alpha=123.0, steps=2, only=("W",))
+    expected = inner_update(params, tasks[0][0], mlp_loss, alpha=0.05, steps=2, only=("W",))
+    assert adapted.keys() == params.keys()           # the step sizes are not part of the model
+    for k in params:
+        np.testing.assert_array_equal(adapted[k], expected[k])
+    # an element's own step size scales only that element's update
+    scaled = dict(with_steps)
+    scaled[STEP_PREFIX + "W1"] = with_steps[STEP_PREFIX + "W1"].copy()
+    scaled[STEP_PREFIX + "W1"][0, 0] = 0.0
+    adapted0 = inner_update(scaled, tasks[0][0], mlp_loss, alpha=0.05, steps=1, only=("W",))
+    assert adapted0["W1"][0, 0] == params["W1"][0, 0] and adapted0["W1"][0, 1] != params["W1"][0, 1]
+
+
+def test_meta_gradient_reaches_learnt_step_sizes_second_order():
+    rng = np.random.default_rng(10)
+    params = make_mlp(rng, d_in=2, d_hidden=3, d_out=1)
+    params = {**params, **init_step_sizes(params, 0.1, only=("W1", "b1"))}
+    params = {k: v + (0.02 * rng.normal(size=v.shape) if k.startswith(STEP_PREFIX) else 0) for k, v in params.items()}
+    tasks = make_tasks(rng, n_tasks=2, T=3, d_in=2, d_out=1)
+    def f(p):
+        return meta_objective(p, tasks, mlp_loss, 0.0, 2, only=("W1", "b1"))
+
+    check_grads(f, modes=["rev"], order=2)(params)
+    _, g = meta_gradient(params, tasks, mlp_loss, 0.0, 2, only=("W1", "b1"))
+    assert np.abs(g[STEP_PREFIX + "W1"]).max() > 0
+
+
+def test_learnt_step_sizes_must_match_the_adapted_keys():
+    rng = np.random.default_rng(11)
+    params = make_mlp(rng)
+    params = {**params, **init_step_sizes(params, 0.1, only=("W1",))}
+    with pytest.raises(ValueError, match="init_step_sizes"):
+        inner_update(params, make_demo(rng), mlp_loss, 0.1, 1, only=("W",))

@@ -95,6 +95,45 @@ def test_inner_params_choose_which_parameters_adapt():
     assert adapted["conv0"] == ["conv0_w", "conv0_b"]
 
 
+def test_learnt_step_sizes_are_meta_trained_checkpointed_and_used_at_meta_test(tiny, tmp_path):
+    cfg = dataclasses.replace(tiny, iterations=4, inner_params="conv0", inner_steps=1, alpha=0.1, learn_alpha=True)
+    params = train.train(cfg, tmp_path / "run", progress=False)
+    steps = {k: v for k, v in params.items() if k.startswith(maml.STEP_PREFIX)}
+    assert sorted(steps) == [maml.STEP_PREFIX + "conv0_b", maml.STEP_PREFIX + "conv0_w"]
+    assert all(v.shape == params[k[len(maml.STEP_PREFIX):]].shape for k, v in steps.items())
+    assert all(not np.allclose(v, 0.1) for v in steps.values())              # Adam moved them
+    assert _same(train.load_checkpoint(tmp_path / "run" / "checkpoint.npz")["params"], params)
+    # meta-test adapts with the learnt sizes, not with alpha: zero sizes leave the policy as it is
+    demo = imitation.prepare_demos(*(data.load(cfg.heldout_data)[k][0, 0] for k in ("images", "states", "actions")), 0.5)
+    frozen = {**params, **{k: np.zeros_like(v) for k, v in steps.items()}}
+    adapted = imitation.adapt(frozen, demo, cfg.alpha, 1, only=train.inner_only(cfg))
+    assert _same(adapted, {k: v for k, v in params.items() if k not in steps})
+
+
+def test_moving_average_of_the_parameters_resumes_exactly_and_is_what_the_policy_uses(tiny, tmp_path):
+    cfg = dataclasses.replace(tiny, iterations=4, checkpoint_every=2, ema=0.5)
+    whole = train.train(cfg, tmp_path / "whole", progress=False)
+    # the same run one iteration at a time (each call resumes), recording the parameters after each step
+    trajectory = [train.train(cfg, tmp_path / "split", progress=False, stop_after=1)]
+    for _ in range(3):
+        trajectory.append(train.train(cfg, tmp_path / "split", resume=True, progress=False, stop_after=1))
+    a, b = (train.load_checkpoint(tmp_path / r / "checkpoint.npz") for r in ("whole", "split"))
+    assert _same(a["params"], whole) and _same(b["params"], whole) and _same(a["ema"], b["ema"])
+    # ema_0 = initial parameters, ema_t = 0.5 ema_{t-1} + 0.5 params_t, written out in float64
+    expected = {k: v.astype(np.float64) for k, v in network.init_params(a["network"], np.random.default_rng(0)).items()}
+    for p in trajectory:
+        expected = {k: 0.5 * expected[k] + 0.5 * p[k].astype(np.float64) for k in p}
+    for k in whole:
+        np.testing.assert_allclose(a["ema"][k], expected[k], rtol=1e-6, atol=1e-7)
+        assert a["ema"][k].dtype == np.float32
+    assert not _same(a["ema"], a["params"])
+    assert train.policy_params(a) is a["ema"] and train.policy_params(a, raw=True) is a["params"]
+    train.train(dataclasses.replace(tiny, iterations=1), tmp_path / "plain", progress=False)
+    assert train.load_checkpoint(tmp_path / "plain" / "checkpoint.npz")["ema"] is None
+    with pytest.raises(ValueError, match="decay, in"):
+        train.train(dataclasses.replace(tiny, ema=1.0), tmp_path / "bad", progress=False)
+
+
 def test_learning_rate_schedules():
     cfg = dataclasses.replace(train.TrainConfig(), lr=1e-3, iterations=100)
     assert [train.learning_rate(cfg, i) for i in (0, 50, 99)] == [1e-3] * 3
@@ -208,3 +247,13 @@ def test_maml_benchmark_reports_the_settings_it_timed(capsys):
     assert (result["inner_steps"], result["inner_params"], result["shards"], result["meta_batch"],
             result["first_order"]) == (1, "conv0", 1, 3, False)
     assert result["seconds_per_iteration"] > 0 and result["gflop_per_second"] > 0
+
+
+def test_the_shipped_policy_is_the_default_profiles_run():
+    """The README's claim: `python -m oneshot.train --profile default` reproduces the shipped policy."""
+    from oneshot.demo import PRETRAINED
+    ckpt = train.load_checkpoint(PRETRAINED)
+    assert ckpt["config"] == train.PROFILES["default"]
+    assert ckpt["iteration"] == train.PROFILES["default"].iterations
+    assert ckpt["ema"] is not None and set(ckpt["ema"]) == set(ckpt["params"])   # the profile keeps an average
+    assert os.path.getsize(PRETRAINED) < 2_000_000
