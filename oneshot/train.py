@@ -147,9 +147,9 @@ def load_checkpoint(path):
                          f"re-train or restore it") from e
     params = {k[len("params/"):]: v for k, v in arrays.items() if k.startswith("params/")}
     ema = {k[len("ema/"):]: v for k, v in arrays.items() if k.startswith("ema/")} or None
-    for k, v in {**params, **{"ema/" + k: v for k, v in (ema or {}).items()}}.items():
-        if not np.all(np.isfinite(v)):
-            raise ValueError(f"{path!r}: parameter {k!r} contains NaN or inf; use an earlier checkpoint")
+    for name, v in arrays.items():
+        if name.startswith(("params/", "ema/")) and not np.all(np.isfinite(v)):
+            raise ValueError(f"{path!r}: {name!r} contains NaN or inf; use an earlier checkpoint")
     rng = np.random.default_rng()
     rng.bit_generator.state = meta["rng"]
     cfg = meta["config"]
@@ -340,9 +340,8 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
                     bar.set_postfix(meta_loss=f"{float(loss):.3f}")
                 if cfg.eval_every and done % cfg.eval_every == 0:
                     r = one_shot_success(params if ema is None else ema, heldout_set, cfg.eval_trials,
-                                         cfg.alpha, cfg.inner_steps,
-                                         only=inner_only(cfg),
-                                         seed=done, progress=False)
+                                         cfg.alpha, cfg.inner_steps, only=inner_only(cfg), seed=done,
+                                         progress=False)
                     _log(log, {"iteration": done, "heldout_success": r["rate"], "trials": r["trials"]})
                     bar.set_postfix(meta_loss=f"{float(loss):.3f}", heldout=f"{r['rate']:.2f}")
                 if done % cfg.checkpoint_every == 0 or done == end:

@@ -7,7 +7,7 @@ import os
 import numpy as np
 import pytest
 
-from oneshot import data, evaluate, imitation, maml, network, train
+from oneshot import data, evaluate, imitation, maml, network, optim, train
 
 
 @pytest.fixture
@@ -154,6 +154,17 @@ def test_corrupt_checkpoint_is_named(tmp_path):
         train.load_checkpoint(bad)
     with pytest.raises(FileNotFoundError, match="oneshot.train"):
         train.load_checkpoint(tmp_path / "missing.npz")
+    # NaN in the parameters or in their moving average: refused, naming the array
+    params = network.init_params(network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,)),
+                                 np.random.default_rng(0))
+    for where in ("params", "ema"):
+        poisoned = {**params, "out_b": np.full_like(params["out_b"], np.nan)}
+        path = tmp_path / f"nan_{where}.npz"
+        train.save_checkpoint(path, poisoned if where == "params" else params, optim.adam_init(params), 1,
+                              np.random.default_rng(0), train.TrainConfig(ema=0.5), network.NetworkConfig(),
+                              ema=poisoned if where == "ema" else params)
+        with pytest.raises(ValueError, match=f"'{where}/out_b' contains NaN"):
+            train.load_checkpoint(path)
 
 
 def test_wilson_interval_against_known_values():
