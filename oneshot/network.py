@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import autograd.numpy as anp
 from autograd.tracer import getval
 import numpy as np
-from autograd.extend import defvjp, primitive
+from autograd.extend import defvjp, defvjp_argnum, primitive
 from numpy.lib.stride_tricks import as_strided
 
 
@@ -208,9 +208,148 @@ defvjp(im2col, lambda ans, x, kernel, stride, padding: lambda g: col2im(g, x.sha
 defvjp(col2im, lambda ans, cols, x_shape, kernel, stride, padding: lambda g: im2col(g, kernel, stride, padding))
 
 
+# ----------------------------------------------------------------------------------------------------
+# Layers as a few large primitives, closed under differentiation
+# ----------------------------------------------------------------------------------------------------
+# Written with autograd.numpy's small operations (reshape, matmul, swapaxes, +, *, sum), one
+# second-order meta-gradient records thousands of nodes, most of them bookkeeping inside autograd's
+# own VJPs (broadcast sums, shape queries, transposes), each costing tens of microseconds of Python.
+# Instead, each layer is a handful of primitives whose VJPs are written with primitives of the same
+# family, so every order of derivative works and the graph holds a few large nodes per layer.
+#
+# The matrix product of a layer, y = x @ w, is a bilinear map; its two VJPs are bilinear maps of the
+# same kind, and so are theirs (u is the incoming gradient):
+#     matmul(x, w)     = x w          VJPs: x <- matmul_dx(g, w),  w <- matmul_dw(x, g)
+#     matmul_dx(g, w)  = g w^T        VJPs: g <- matmul(u, w),     w <- matmul_dw(u, g)
+#     matmul_dw(x, g)  = x^T g        VJPs: x <- matmul_dx(g, u),  g <- matmul(x, u)
+# A convolution is matmul(im2col(x), w), and im2col/col2im are each other's VJP (above). The weight w
+# is shared by all tasks, (K, M), or has a leading task axis, (B, K, M): one copy per task, as after
+# MAML's inner step. x: (..., K), every row times w; with per-task w its rows are task-major
+# (the first 1/B of the rows belong to task 0, ...), as `im2col` and the (B, T, n) activations give.
+
+
+def _rows(x, w):
+    """x as a matrix of rows: (R, K) for a shared weight (every task's rows), (B, R / B, K) per task."""
+    return x.reshape((w.shape[0], -1, x.shape[-1]) if w.ndim == 3 else (-1, x.shape[-1]))
+
+
+def _tasks(w):
+    """B for a per-task weight (B, K, M), 0 for a shared one (K, M)."""
+    return w.shape[0] if w.ndim == 3 else 0
+
+
+@primitive
+def matmul(x, w):
+    """y = x @ w for a layer: x (..., K), w (K, M) or per task (B, K, M) -> (..., M)."""
+    return (_rows(x, w) @ w).reshape(x.shape[:-1] + (w.shape[-1],))
+
+
+@primitive
+def matmul_dx(g, w):
+    """VJP of `matmul` with respect to x: g @ w^T. g: (..., M) -> (..., K)."""
+    return (_rows(g, w) @ np.swapaxes(w, -1, -2)).reshape(g.shape[:-1] + (w.shape[-2],))
+
+
+@primitive
+def matmul_dw(x, g, tasks):
+    """VJP of `matmul` with respect to w: x^T @ g summed over rows: over each task's rows for a
+    per-task w (tasks = B; result (B, K, M)), over all of them for a shared w (tasks = 0; (K, M))."""
+    shape = (tasks, -1) if tasks else (-1,)
+    return np.swapaxes(x.reshape(shape + x.shape[-1:]), -1, -2) @ g.reshape(shape + g.shape[-1:])
+
+
+defvjp(matmul,
+       lambda ans, x, w: lambda g: matmul_dx(g, w),
+       lambda ans, x, w: lambda g: matmul_dw(x, g, _tasks(w)))
+defvjp(matmul_dx,
+       lambda ans, g, w: lambda u: matmul(u, w),
+       lambda ans, g, w: lambda u: matmul_dw(u, g, _tasks(w)))
+defvjp(matmul_dw,
+       lambda ans, x, g, tasks: lambda u: matmul_dx(g, u),
+       lambda ans, x, g, tasks: lambda u: matmul(x, u))
+
+
+def _bias_view(b, ndim):
+    """Bias (C,) shared, or (B, C) per task -> broadcastable against an activation with ndim axes."""
+    return b if b.ndim == 1 else b.reshape((b.shape[0],) + (1,) * (ndim - 2) + (b.shape[-1],))
+
+
+@primitive
 def add_bias(y, b):
-    """y: (..., N, C) plus bias b: (C,) shared, or (..., C) one per leading index; broadcast over the N rows."""
-    return y + (b if b.ndim == 1 else anp.expand_dims(b, -2))
+    """y: (..., C) plus bias b: (C,) shared, or (B, C) one per task (y then (B, ..., C))."""
+    if b.ndim == 1 and y.size % (16 * b.size) == 0:
+        # The same sum, but NumPy's inner loop runs over 16 C entries instead of C: ~2.8x faster
+        # for C = 40 (measured on (60, 16, 16, 40) activations: 0.29 ms instead of 0.82 ms).
+        return (y.reshape(-1, 16 * b.size) + np.tile(b, 16)).reshape(y.shape)
+    return y + _bias_view(b, y.ndim)
+
+
+@primitive
+def bias_grad(g, b_shape):
+    """VJP of `add_bias` with respect to b: g summed over every axis the bias was broadcast along.
+    Written as a product with a vector of ones (BLAS), ~7x faster than `g.sum(axis=...)` here."""
+    rows = g.reshape((-1, g.shape[-1]) if len(b_shape) == 1 else (g.shape[0], -1, g.shape[-1]))
+    return np.ones(rows.shape[-2], g.dtype) @ rows
+
+
+@primitive
+def broadcast_bias(u, y_shape):
+    """VJP of `bias_grad`: the bias-shaped u broadcast back to the activation's shape."""
+    return np.broadcast_to(_bias_view(u, len(y_shape)), y_shape)
+
+
+defvjp(add_bias, lambda ans, y, b: lambda g: g, lambda ans, y, b: lambda g: bias_grad(g, b.shape))
+defvjp(bias_grad, lambda ans, g, b_shape: lambda u: broadcast_bias(u, g.shape))
+defvjp(broadcast_bias, lambda ans, u, y_shape: lambda g: bias_grad(g, u.shape))
+
+
+@primitive
+def relu(x):
+    """max(x, 0). Its VJP multiplies by the constant mask x > 0 (`mask`), whose VJP is itself: every
+    order works, and float32 stays float32 (autograd's VJPs of `maximum`/`where` promote it under
+    NumPy 2; see docs/network.md)."""
+    return x * (x > 0)
+
+
+@primitive
+def mask(g, m):
+    """g * m for a constant boolean mask m (the ReLU's derivative); linear in g."""
+    return g * m
+
+
+defvjp(relu, lambda ans, x: lambda g: mask(g, getval(ans) > 0))
+defvjp(mask, lambda ans, g, m: lambda u: mask(u, m))
+
+
+@primitive
+def concat_last(*parts):
+    """Concatenate along the last axis (autograd's own `concatenate` differentiates through indexing
+    whose second derivative is a slow scatter-add, `np.add.at`)."""
+    return np.concatenate(parts, axis=-1)
+
+
+@primitive
+def slice_last(x, start, stop):
+    """x[..., start:stop] (a copy); the VJP of `concat_last` for one part."""
+    return np.ascontiguousarray(x[..., start:stop])
+
+
+@primitive
+def pad_last(x, start, total):
+    """x placed at [start, start + n) of a zero array with `total` entries on the last axis."""
+    out = np.zeros(x.shape[:-1] + (total,), x.dtype)
+    out[..., start : start + x.shape[-1]] = x
+    return out
+
+
+def _concat_vjp(argnum, ans, args, kwargs):
+    start = sum(a.shape[-1] for a in args[:argnum])
+    return lambda g: slice_last(g, start, start + args[argnum].shape[-1])
+
+
+defvjp_argnum(concat_last, _concat_vjp)
+defvjp(slice_last, lambda ans, x, start, stop: lambda g: pad_last(g, start, x.shape[-1]))
+defvjp(pad_last, lambda ans, x, start, total: lambda g: slice_last(g, start, start + x.shape[-1]))
 
 
 def conv2d(x, w, b, stride):
@@ -224,15 +363,8 @@ def conv2d(x, w, b, stride):
     k, c_out = w.shape[-4], w.shape[-1]
     h_out, w_out = conv_output_size(h, k, stride), conv_output_size(width, k, stride)
     cols = im2col(anp.reshape(x, (-1, h, width, c_in)), k, stride, k // 2)  # (B * N * H_out * W_out, k*k*C_in)
-    cols = anp.reshape(cols, (*batch, n * h_out * w_out, k * k * c_in))
-    y = add_bias(cols @ anp.reshape(w, (*w.shape[:-4], k * k * c_in, c_out)), b)  # (B, N * H_out * W_out, C_out)
-    return anp.reshape(y, (*batch, n, h_out, w_out, c_out))
-
-
-def relu(x):
-    """max(x, 0), written as x * (x > 0): autograd's VJPs of `maximum`/`where` promote float32 to
-    float64 under NumPy 2, while a product with a boolean mask keeps the dtype (see docs/network.md)."""
-    return x * (x > 0)
+    y = matmul(cols, anp.reshape(w, w.shape[:-4] + (k * k * c_in, c_out)))  # task-major rows
+    return add_bias(anp.reshape(y, (*batch, n, h_out, w_out, c_out)), b)
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -294,11 +426,11 @@ def forward(params, images, states, stride=2):
     if "bias_transform" in params:  # the same learned vector appended to every frame: (T, bias_transform)
         parts.append(np.ones((*states.shape[:-1], 1), states.dtype) * _per_frame(params["bias_transform"]))
     parts.append(states)
-    h, i = anp.concatenate(parts, axis=-1), 0  # (T, n_in of fc0)
+    h, i = concat_last(*parts), 0  # (T, n_in of fc0)
     while f"fc{i}_w" in params:  # 4 x (T, 100)
-        h = relu(add_bias(h @ params[f"fc{i}_w"], params[f"fc{i}_b"]))
+        h = relu(add_bias(matmul(h, params[f"fc{i}_w"]), params[f"fc{i}_b"]))
         i += 1
-    return add_bias(h @ params["out_w"], params["out_b"])  # (T, action_dim)
+    return add_bias(matmul(h, params["out_w"]), params["out_b"])  # (T, action_dim)
 
 
 def spatial_soft_argmax(x, temperature):
@@ -317,7 +449,7 @@ def spatial_soft_argmax(x, temperature):
     p = e / anp.sum(e, axis=-2, keepdims=True)  # (..., H*W, C), sums to 1 over positions
     xs = np.tile(np.linspace(-1, 1, w, dtype=x.dtype), h)[:, None]  # (H*W, 1)
     ys = np.repeat(np.linspace(-1, 1, h, dtype=x.dtype), w)[:, None]
-    return anp.concatenate([anp.sum(p * xs, axis=-2), anp.sum(p * ys, axis=-2)], axis=-1)
+    return concat_last(anp.sum(p * xs, axis=-2), anp.sum(p * ys, axis=-2))
 
 
 def _per_frame(v):

@@ -230,7 +230,14 @@ def sharded_meta_gradient(params, adapt, evaluate, cfg, pool=None):
     """
     parts = shard_meta_batch(adapt, evaluate, cfg.shards)
     jobs = [(params, a, e, cfg.alpha, cfg.inner_steps, cfg.first_order, inner_only(cfg)) for a, e, _ in parts]
-    results = pool.map(_shard_gradient, jobs) if pool is not None else [_shard_gradient(j) for j in jobs]
+    if pool is not None and len(jobs) > 1:
+        # The workers take every shard but the last (the largest), which this process computes
+        # meanwhile: one fewer round trip of parameters, demos and gradients between processes.
+        pending = pool.map_async(_shard_gradient, jobs[:-1])
+        last = _shard_gradient(jobs[-1])
+        results = pending.get() + [last]
+    else:
+        results = [_shard_gradient(j) for j in jobs]
     B = sum(n for _, _, n in parts)
     loss = sum(v * (n / B) for (v, _), (_, _, n) in zip(results, parts))
     grads = {k: sum(g[k] * np.float32(n / B) for (_, g), (_, _, n) in zip(results, parts)) for k in params}
@@ -259,10 +266,12 @@ def _blas_threads(n):
 
 
 def make_pool(cfg):
-    """Worker processes for the shards (None when one process is enough)."""
+    """Worker processes for all shards but one, which the calling process computes (None when one
+    process is enough). Every process, this one included, keeps to one BLAS thread (`_blas_threads`)."""
     if cfg.shards < 2 or (os.cpu_count() or 1) < 2:
         return None
-    return multiprocessing.get_context("fork").Pool(min(cfg.shards, os.cpu_count()),
+    _blas_threads(1)
+    return multiprocessing.get_context("fork").Pool(min(cfg.shards, os.cpu_count()) - 1,
                                                     initializer=_blas_threads, initargs=(1,))
 
 

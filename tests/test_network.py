@@ -87,6 +87,52 @@ def test_conv_layer_second_order_gradients():
     check_grads(lambda x, w, b: anp.sum(anp.sin(conv2d(x, w, b, 2))), modes=["rev"], order=2)(x, w, b)
 
 
+@pytest.mark.parametrize("tasks", [0, 3])
+def test_layer_primitives_are_adjoint_pairs(tasks):
+    # Each primitive is linear in each argument, and its VJP must be its exact transpose:
+    # <f(x), y> == <x, f^T(y)>. Checked for shared weights and per-task weights (a leading task axis).
+    from oneshot.network import add_bias, bias_grad, broadcast_bias, matmul, matmul_dw, matmul_dx
+    rng = np.random.default_rng(4)
+    lead = (tasks, 2, 5) if tasks else (2, 5)  # (B, T, rows) activations, or (T, rows)
+    x, g = rng.standard_normal(lead + (4,)), rng.standard_normal(lead + (3,))
+    w = rng.standard_normal(((tasks,) if tasks else ()) + (4, 3))
+    ip = lambda a, b: float(np.sum(a * b))
+    assert ip(matmul(x, w), g) == pytest.approx(ip(x, matmul_dx(g, w)), rel=1e-12)
+    assert ip(matmul(x, w), g) == pytest.approx(ip(w, matmul_dw(x, g, tasks)), rel=1e-12)
+    np.testing.assert_allclose(matmul(x, w), x @ (w[:, None] if tasks else w), rtol=1e-12)
+    b = rng.standard_normal(((tasks,) if tasks else ()) + (3,))
+    assert ip(add_bias(np.zeros_like(g), b), g) == pytest.approx(ip(b, bias_grad(g, b.shape)), rel=1e-12)
+    assert ip(broadcast_bias(b, g.shape), g) == pytest.approx(ip(b, bias_grad(g, b.shape)), rel=1e-12)
+    y = rng.standard_normal((6, 16 * 3))  # add_bias's fast path (a multiple of 16 C entries)
+    np.testing.assert_array_equal(add_bias(y.reshape(6, 16, 3), b[0] if tasks else b), y.reshape(6, 16, 3) + (b[0] if tasks else b))
+
+
+def test_concat_relu_primitives_match_numpy_and_have_exact_second_order_gradients():
+    from oneshot.network import concat_last, relu
+    rng = np.random.default_rng(6)
+    a, b = rng.standard_normal((2, 3, 2)), rng.standard_normal((2, 3, 4))
+    np.testing.assert_array_equal(concat_last(a, b), np.concatenate([a, b], axis=-1))
+    np.testing.assert_array_equal(relu(a), np.maximum(a, 0))
+    # sin(...) makes the second derivative of the composition non-zero through every primitive.
+    check_grads(lambda a, b: anp.sum(anp.sin(concat_last(relu(a), b)) * concat_last(b, a)), modes=["rev"], order=2)(a, b)
+
+
+def test_network_second_order_gradients_with_per_task_parameters():
+    # MAML's batched meta-objective: some parameters with a leading task axis (adapted), the rest
+    # shared. Exercises the per-task branches of every layer primitive, to second order.
+    params, _, _, _ = tiny_problem()
+    rng = np.random.default_rng(7)
+    images, states, actions = rng.random((3, 2, 8, 8, 3)), rng.standard_normal((3, 2, 3)), rng.standard_normal((3, 2, 2))
+    for adapted in (("conv0_w", "conv0_b"), tuple(params)):
+        p = {k: np.stack([v + 0.1 * b for b in range(3)]) if k in adapted else v for k, v in params.items()}
+
+        def loss(p):
+            r = predict_tasks(p, images, states) - actions
+            return anp.sum(r * r)
+
+        check_grads(loss, modes=["rev"], order=2)(p)
+
+
 def test_network_second_order_gradients():
     params, images, states, actions = tiny_problem()
 
