@@ -10,7 +10,9 @@ a small convolutional policy:
 Everything here is a pure function of an explicit parameter dict, written in `autograd.numpy`, so MAML
 (Section II) can differentiate the imitation loss through it twice. The convolution is an im2col
 matrix product, with `im2col` and `col2im` registered as autograd primitives that are each other's
-vector-Jacobian product (both are linear maps), so derivatives of every order come for free.
+vector-Jacobian product (both are linear maps), so derivatives of every order come for free. The
+layers' matrix products, bias adds, ReLUs and the concatenation are primitives of the same kind (their
+VJPs are built from each other), which keeps the graph of a second-order meta-gradient small.
 
 Everything runs in the dtype of the parameters: float32 for training, float64 for gradient checks.
 """

@@ -14,15 +14,23 @@ from autograd.test_util import check_grads
 
 from oneshot.network import (
     NetworkConfig,
+    add_bias,
+    bias_grad,
+    broadcast_bias,
     col2im,
+    concat_last,
     conv2d,
     count_flops,
     images_to_float,
     init_params,
     im2col,
+    matmul,
+    matmul_dw,
+    matmul_dx,
     param_shapes,
     predict,
     predict_tasks,
+    relu,
 )
 
 TINY = NetworkConfig(image_size=8, channels=(2, 3), hidden=(5, 4), state_dim=3, action_dim=2)
@@ -91,7 +99,6 @@ def test_conv_layer_second_order_gradients():
 def test_layer_primitives_are_adjoint_pairs(tasks):
     # Each primitive is linear in each argument, and its VJP must be its exact transpose:
     # <f(x), y> == <x, f^T(y)>. Checked for shared weights and per-task weights (a leading task axis).
-    from oneshot.network import add_bias, bias_grad, broadcast_bias, matmul, matmul_dw, matmul_dx
     rng = np.random.default_rng(4)
     lead = (tasks, 2, 5) if tasks else (2, 5)  # (B, T, rows) activations, or (T, rows)
     x, g = rng.standard_normal(lead + (4,)), rng.standard_normal(lead + (3,))
@@ -108,7 +115,6 @@ def test_layer_primitives_are_adjoint_pairs(tasks):
 
 
 def test_concat_relu_primitives_match_numpy_and_have_exact_second_order_gradients():
-    from oneshot.network import concat_last, relu
     rng = np.random.default_rng(6)
     a, b = rng.standard_normal((2, 3, 2)), rng.standard_normal((2, 3, 4))
     np.testing.assert_array_equal(concat_last(a, b), np.concatenate([a, b], axis=-1))
