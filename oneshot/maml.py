@@ -97,7 +97,9 @@ defvjp(scale, lambda ans, x, a: lambda u: scale(u, a))
 def _step(theta, g, alpha):
     """Eq. (1) for one array: the primitive for a scalar step size, plain operations for a learnt
     (array) one, whose own gradient the meta-objective needs."""
-    return gradient_step(theta, g, alpha) if isinstance(alpha, float) else theta - alpha * g
+    if isinstance(alpha, float) and np.shape(theta) == np.shape(g):
+        return gradient_step(theta, g, alpha)
+    return theta - alpha * g
 
 
 def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False, inner_clip=None, only=None):
