@@ -6,13 +6,14 @@ the end effector within 0.05 m of the target over the final fifth of the episode
 95% Wilson score interval, and on meta-training colours for contrast.
 """
 import argparse
+import dataclasses
 import json
 import math
 import sys
 
 from tqdm import tqdm
 
-from oneshot import data, imitation
+from oneshot import data, imitation, maml
 from oneshot.arm import ArmConfig
 from oneshot.palette import PaletteConfig
 from oneshot.world import ReachWorld, WorldConfig, closest_object
@@ -116,10 +117,20 @@ def main(argv=None):
                    help="also run the policy without adaptation on the held-out colours (does adapting help?)")
     p.add_argument("--raw", action="store_true",
                    help="act with the parameters Adam trained, not their moving average (runs with --ema)")
+    p.add_argument("--alpha", type=float, default=None,
+                   help="meta-test with this inner step size instead of the one the checkpoint was trained with")
+    p.add_argument("--inner-steps", type=int, default=None,
+                   help="meta-test with this many inner steps instead of the trained number")
     p.add_argument("--json", default=None, help="also write the results to this JSON file")
     args = p.parse_args(argv)
     ckpt = load_checkpoint(args.checkpoint)
     params, cfg = policy_params(ckpt, args.raw), ckpt["config"]
+    cfg = dataclasses.replace(cfg, **{k: v for k, v in (("alpha", args.alpha), ("inner_steps", args.inner_steps))
+                                      if v is not None})
+    try:
+        maml._check_step(cfg.alpha, cfg.inner_steps, None)
+    except ValueError as e:
+        p.error(f"{e} (--alpha >= 0, --inner-steps >= 0)")
     only = inner_only(cfg)
     results = {}
     for name, path in (("heldout", args.heldout), ("train", args.train)):

@@ -195,6 +195,21 @@ def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, caps
     assert not world_seeds & set(heldout["seeds"].ravel().tolist())
 
 
+def test_evaluate_command_can_meta_test_with_another_step_size(tiny, tmp_path, capsys):
+    # alpha 0 leaves the policy as it is, so its "adapted" trials are the unadapted ones, scene by scene.
+    train.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
+    ckpt = str(tmp_path / "run" / "checkpoint.npz")
+    results = evaluate.main([ckpt, "--heldout", tiny.heldout_data, "--train", "", "--trials", "3",
+                             "--unadapted", "--alpha", "0", "--inner-steps", "2"])
+    assert results["heldout"]["per_colour"] == results["heldout_unadapted"]["per_colour"]
+    assert results["adaptation_gain"]["before"] == pytest.approx(results["adaptation_gain"]["after"], rel=1e-6)
+    trained = evaluate.main([ckpt, "--heldout", tiny.heldout_data, "--train", "", "--trials", "1"])
+    assert trained["adaptation_gain"]["after"] != trained["adaptation_gain"]["before"]  # the flag did it
+    with pytest.raises(SystemExit):
+        evaluate.main([ckpt, "--heldout", tiny.heldout_data, "--train", "", "--alpha", "-1"])
+    assert "alpha" in capsys.readouterr().err
+
+
 def test_adaptation_gain_scores_a_second_demo_before_and_after_adapting(tiny, tmp_path):
     params = train.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
     heldout = data.load(tiny.heldout_data)                       # 2 colours x 2 demos: 2 pairs
