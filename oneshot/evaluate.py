@@ -80,6 +80,15 @@ def one_shot_success(params, dataset, trials_per_colour=10, alpha=0.001, steps=3
             "ci95": wilson_interval(wins, trials), "per_colour": per_colour, "failures": failures}
 
 
+def colour_breakdown(result, trials_per_colour, metadata):
+    """One line of per-colour successes, e.g. "0 deg 10/10, 30 deg 8/10, ...", in hue order: which
+    new colours are hard (on our palette, the hues half-way between the primaries and secondaries;
+    docs/training.md, "Which colours fail")."""
+    size = metadata["world"]["palette"]["size"]
+    return ", ".join(f"{360 * c / size:g} deg {round(rate * trials_per_colour)}/{trials_per_colour}"
+                     for c, rate in sorted(result["per_colour"].items()))
+
+
 def adaptation_gain(params, dataset, alpha=0.001, steps=3, pairs=5, only=None):
     """Does adapting on one demo help on ANOTHER demo of the same colour? (Cheap, and far less noisy
     than rollouts.) For each task and j < pairs: adapt on demo j, score eq. (2) on demo j + 1.
@@ -144,6 +153,7 @@ def main(argv=None):
               f"to the target, but not within reach), {r['failures']['wrong_object']} at a distractor")
         results[name] = r
         if name == "heldout":
+            print(f"heldout colours, by hue: {colour_breakdown(r, args.trials, dataset['metadata'])}")
             g = adaptation_gain(params, dataset, cfg.alpha, cfg.inner_steps, only=only)
             print(f"heldout colours: eq. (2) loss on a second demo {g['before']:.3f} before adapting on "
                   f"one demo, {g['after']:.3f} after ({g['pairs']} pairs)")

@@ -183,7 +183,12 @@ def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, caps
     assert r["trials"] == 2 * 3 and 0 <= r["successes"] <= 6
     assert r["ci95"][0] <= r["rate"] <= r["ci95"][1]
     assert sum(r["failures"].values()) == r["trials"] - r["successes"]   # every failure gets a kind
-    assert "heldout colours: one-shot success" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "heldout colours: one-shot success" in printed
+    by_hue = next(line for line in printed.splitlines() if line.startswith("heldout colours, by hue: "))
+    counts = [item.split()[-1].split("/") for item in by_hue.split(": ", 1)[1].split(", ")]
+    assert len(counts) == 2 and all(t == "3" for _, t in counts)            # 2 colours, 3 trials each
+    assert sum(int(s) for s, _ in counts) == r["successes"]
     with open(out) as f:
         written = json.load(f)
     assert written["heldout"]["trials"] == 6 and written["adaptation_gain"]["pairs"] == 2
