@@ -204,10 +204,11 @@ def value_and_grads(fun, arrays, *args):
 
     autograd differentiates with respect to a dict by boxing the dict as one container: every read
     of an entry records a node whose backward step builds a vector space of the whole dict and
-    copies it, 16 entries x 16 reads here, in Python. Instead each array gets its own root node on
-    autograd's tape, and the backward pass (autograd's `backward_pass`, with several roots) hands
-    each array its gradient directly. It nests like `grad`: called while an outer gradient is being
-    traced (MAML's inner steps), its backward pass is itself recorded and differentiable again.
+    copies it, so reading 16 parameters costs 16 x 16 entries' work in Python. Instead each array
+    gets its own root node on autograd's tape, and the backward pass (autograd's `backward_pass`
+    with several roots) hands each array its gradient directly. It nests like `grad`: called while
+    an outer gradient is being traced (MAML's inner steps), its backward pass is itself recorded
+    and differentiable again.
     Measured (`python -m oneshot.benchmark maml --profile mil`): the Python time of a second-order
     3-step meta-gradient drops by about a third, a whole meta-iteration by 8-12% (docs/network.md).
 
