@@ -3,7 +3,8 @@
 These measure what tests should not time: medians of repeated runs on this machine.
     expert   iLQG solve time (median over scenes) and the expert's success rate over many scenes
     collect  wall time to collect a dataset of demonstrations with all cores
-    maml     seconds per second-order meta-iteration, GFLOP/s and peak memory
+    maml     seconds per second-order meta-iteration, GFLOP/s and peak memory; with --breakdown, where
+             the time of one shard of the meta-batch goes
     privileged  ceilings for the policy network: plain behavioural cloning on all meta-training
              demos when the policy is GIVEN what one-shot imitation must infer (the target's position,
              or its colour), scored on held-out colours. If these are high, what remains hard is the
@@ -121,6 +122,91 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
             "ci95": wilson_interval(wins, trials)}
 
 
+def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **overrides):
+    """Where the time of one meta-gradient shard goes: the largest shard of the profile's meta-batch
+    (the one the training process computes itself), computed in this process with one BLAS thread,
+    as during training.
+
+    The shard is timed `iterations` times as it is (median wall time), then `iterations` more times
+    under Python's cProfile, which gives the time spent inside each of the network's primitives
+    (`oneshot.network`, `oneshot.maml`): the matrix products, im2col/col2im and the rest of the layer
+    primitives (bias, ReLU, masks, concatenation, eq. (1)). The remainder of the wall time is autograd's
+    own Python bookkeeping, its sums of gradients and NumPy's small operations (the loss, reshapes).
+    Returns milliseconds per shard.
+    """
+    import cProfile
+    import pstats
+
+    from oneshot import imitation, maml, network, train
+
+    train._tune_malloc()
+    train._blas_threads(1)
+    cfg = dataclasses.replace(train.PROFILES[profile], **overrides)
+    rng = np.random.default_rng(0)
+    net_cfg = network.NetworkConfig(image_size=image_size, bias_transform=cfg.bias_transform,
+                                    feature_points=cfg.feature_points)
+    params = train.initial_params(cfg, net_cfg, rng)
+    B = -(-cfg.meta_batch // max(1, min(cfg.shards, cfg.meta_batch)))      # the largest shard
+
+    def demos():
+        return (rng.random((B, T, image_size, image_size, 3), dtype=np.float32),
+                rng.standard_normal((B, T, 6), dtype=np.float32),
+                rng.standard_normal((B, T, 2), dtype=np.float32))
+
+    adapt, evaluate = demos(), demos()
+
+    def shard():
+        return maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, cfg.alpha,
+                                          cfg.inner_steps, cfg.first_order, train.inner_only(cfg))
+
+    for _ in range(2):
+        shard()
+    times = []
+    for _ in range(iterations):
+        t = time.perf_counter()
+        shard()
+        times.append(time.perf_counter() - t)
+    profiler = cProfile.Profile()
+    profiler.enable()
+    for _ in range(iterations):
+        shard()
+    profiler.disable()
+    stats = pstats.Stats(profiler).stats                 # (file, line, name) -> (cc, calls, tottime, cumtime, callers)
+    groups = {"matrix_products": ("matmul", "matmul_dx", "matmul_dw"), "im2col_col2im": ("im2col", "col2im")}
+    ms = dict.fromkeys(["matrix_products", "im2col_col2im", "other_layer_primitives"], 0.0)
+    for module in (network, maml):
+        for name, f in vars(module).items():
+            if not getattr(f, "_is_autograd_primitive", False):
+                continue
+            code = f.fun.__code__
+            entry = stats.get((code.co_filename, code.co_firstlineno, code.co_name))
+            group = next((g for g, names in groups.items() if name in names), "other_layer_primitives")
+            ms[group] += 1e3 * entry[3] / iterations if entry else 0.0
+    wall = 1e3 * float(np.median(times))
+    passes = 3 * cfg.inner_steps + 3 if cfg.first_order else 3 * (3 * cfg.inner_steps + 1)   # as bench_meta_iteration
+    flops = B * passes * network.count_flops(net_cfg, T)
+    result = {"profile": profile, "shard_tasks": B, "inner_steps": cfg.inner_steps, "inner_params": cfg.inner_params,
+              "first_order": cfg.first_order, "shard_ms": round(wall, 1)}
+    result.update({k + "_ms": round(v, 1) for k, v in ms.items()})
+    result["autograd_and_small_ops_ms"] = round(wall - sum(ms.values()), 1)
+    result["matrix_products_gflop_per_second"] = round(flops / 1e6 / ms["matrix_products"], 1)
+    result["blas_sgemm_1024_gflop_per_second"] = round(_sgemm_rate(), 1)
+    return result
+
+
+def _sgemm_rate(n=1024, repeats=10):
+    """GFLOP/s of one float32 (n, n) @ (n, n) product in this process (median): what BLAS reaches on
+    a large square product, against which to read the network's thin ones (40 output channels)."""
+    rng = np.random.default_rng(0)
+    a, b = rng.random((n, n), dtype=np.float32), rng.random((n, n), dtype=np.float32)
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        a @ b
+        times.append(time.perf_counter() - t)
+    return 2 * n ** 3 / float(np.median(times)) / 1e9
+
+
 def peak_memory_mb():
     """Peak resident memory (MB) of this process and of the largest of its finished worker processes."""
     return (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
@@ -147,6 +233,9 @@ def main(argv=None):
     m.add_argument("--meta-batch", type=int, default=None, help="override the profile's meta-batch")
     m.add_argument("--shards", type=int, default=None,
                    help="override the profile's shards (processes sharing the meta-batch; 1 = one process)")
+    m.add_argument("--breakdown", action="store_true",
+                   help="instead: where the time of the training process's shard goes (matrix products, "
+                        "im2col/col2im, other layer primitives, autograd's Python)")
     v = sub.add_parser("privileged", help="ceiling: behavioural cloning given the target's position or colour")
     v.add_argument("--given", choices=("position", "colour"), default="colour")
     v.add_argument("--steps", type=int, default=3000)
@@ -166,7 +255,8 @@ def main(argv=None):
         overrides = {k: v for k, v in (("first_order", args.first_order or None), ("inner_steps", args.inner_steps),
                                        ("inner_params", args.inner_params), ("meta_batch", args.meta_batch),
                                        ("shards", args.shards)) if v is not None}
-        result = bench_meta_iteration(args.iterations, args.profile, **overrides)
+        bench = bench_breakdown if args.breakdown else bench_meta_iteration
+        result = bench(args.iterations, args.profile, **overrides)
     main_mb, worker_mb = peak_memory_mb()
     result["peak_memory_mb"] = round(main_mb, 1)
     result["peak_worker_memory_mb"] = round(worker_mb, 1)

@@ -3,6 +3,8 @@ import dataclasses
 import itertools
 import json
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -278,6 +280,18 @@ def test_maml_benchmark_reports_the_settings_it_timed(capsys):
     assert (result["inner_steps"], result["inner_params"], result["shards"], result["meta_batch"],
             result["first_order"]) == (1, "conv0", 1, 3, False)
     assert result["seconds_per_iteration"] > 0 and result["gflop_per_second"] > 0
+
+
+def test_maml_breakdown_finds_every_part_of_a_shard():
+    """`--breakdown` times the network's primitives by name under cProfile: if a primitive were renamed
+    or moved, its group would silently read 0 ms. Run in its own process: it sets BLAS to one thread."""
+    out = subprocess.run([sys.executable, "-m", "oneshot.benchmark", "maml", "--breakdown", "--profile", "tiny",
+                          "--iterations", "1", "--inner-steps", "1"], capture_output=True, text=True, check=True)
+    result = json.loads(out.stdout)
+    assert (result["profile"], result["shard_tasks"], result["inner_steps"]) == ("tiny", 2, 1)
+    parts = ["matrix_products_ms", "im2col_col2im_ms", "other_layer_primitives_ms"]
+    assert all(result[k] > 0 for k in parts + ["shard_ms", "matrix_products_gflop_per_second"])
+    assert sum(result[k] for k in parts) + result["autograd_and_small_ops_ms"] == pytest.approx(result["shard_ms"], abs=0.5)
 
 
 def test_the_shipped_policy_is_the_default_profiles_run():
