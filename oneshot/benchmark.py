@@ -127,12 +127,12 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **ove
     (the one the training process computes itself), computed in this process with one BLAS thread,
     as during training.
 
-    The shard is timed `iterations` times as it is (median wall time), then `iterations` more times
-    under Python's cProfile, which gives the time spent inside each of the network's primitives
-    (`oneshot.network`, `oneshot.maml`): the matrix products, im2col/col2im and the rest of the layer
-    primitives (bias, ReLU, masks, concatenation, eq. (1)). The remainder of the wall time is autograd's
-    own Python bookkeeping, its sums of gradients and NumPy's small operations (the loss, reshapes).
-    Returns milliseconds per shard.
+    The shard is computed `iterations` times as it is (median wall time) and, alternately with those,
+    `iterations` times under Python's cProfile, which gives the time spent inside each of the network's
+    primitives (`oneshot.network`, `oneshot.maml`; medians): the matrix products, im2col/col2im and the
+    rest of the layer primitives (bias, ReLU, masks, concatenation, eq. (1)). The remainder of the wall
+    time is autograd's own Python bookkeeping, its sums of gradients and NumPy's small operations (the
+    loss, reshapes). Returns milliseconds per shard.
     """
     import cProfile
     import pstats
@@ -141,50 +141,42 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **ove
 
     train._tune_malloc()
     train._blas_threads(1)
-    cfg = dataclasses.replace(train.PROFILES[profile], **overrides)
-    rng = np.random.default_rng(0)
-    net_cfg = network.NetworkConfig(image_size=image_size, bias_transform=cfg.bias_transform,
-                                    feature_points=cfg.feature_points)
-    params = train.initial_params(cfg, net_cfg, rng)
-    B = -(-cfg.meta_batch // max(1, min(cfg.shards, cfg.meta_batch)))      # the largest shard
-
-    def demos():
-        return (rng.random((B, T, image_size, image_size, 3), dtype=np.float32),
-                rng.standard_normal((B, T, 6), dtype=np.float32),
-                rng.standard_normal((B, T, 2), dtype=np.float32))
-
-    adapt, evaluate = demos(), demos()
+    cfg, net_cfg, params, rng = train.bench_setup(profile, image_size, **overrides)
+    batch = [train.synthetic_demos(rng, cfg.meta_batch, T, image_size) for _ in range(2)]
+    adapt, evaluate, tasks = train.shard_meta_batch(*batch, cfg.shards)[-1]   # the training process's shard
+    B = int(tasks)
 
     def shard():
         return maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, cfg.alpha,
                                           cfg.inner_steps, cfg.first_order, train.inner_only(cfg))
 
-    for _ in range(2):
-        shard()
-    times = []
-    for _ in range(iterations):
-        t = time.perf_counter()
-        shard()
-        times.append(time.perf_counter() - t)
-    profiler = cProfile.Profile()
-    profiler.enable()
-    for _ in range(iterations):
-        shard()
-    profiler.disable()
-    stats = pstats.Stats(profiler).stats                 # (file, line, name) -> (cc, calls, tottime, cumtime, callers)
     groups = {"matrix_products": ("matmul", "matmul_dx", "matmul_dw"), "im2col_col2im": ("im2col", "col2im")}
-    ms = dict.fromkeys(["matrix_products", "im2col_col2im", "other_layer_primitives"], 0.0)
+    keys = {}                                             # cProfile's key of each primitive -> its group
     for module in (network, maml):
         for name, f in vars(module).items():
-            if not getattr(f, "_is_autograd_primitive", False):
-                continue
-            code = f.fun.__code__
-            entry = stats.get((code.co_filename, code.co_firstlineno, code.co_name))
-            group = next((g for g, names in groups.items() if name in names), "other_layer_primitives")
-            ms[group] += 1e3 * entry[3] / iterations if entry else 0.0
+            if getattr(f, "_is_autograd_primitive", False):
+                code = f.fun.__code__
+                keys[(code.co_filename, code.co_firstlineno, code.co_name)] = next(
+                    (g for g, names in groups.items() if name in names), "other_layer_primitives")
+    for _ in range(2):
+        shard()
+    times, parts = [], []
+    for _ in range(iterations):                           # plain and profiled runs alternate: the host's
+        t = time.perf_counter()                           # speed drifts, and both should see the same
+        shard()
+        times.append(time.perf_counter() - t)
+        profiler = cProfile.Profile()
+        profiler.enable()
+        shard()
+        profiler.disable()
+        stats = pstats.Stats(profiler).stats              # key -> (calls, calls, tottime, cumtime, callers)
+        part = dict.fromkeys(["matrix_products", "im2col_col2im", "other_layer_primitives"], 0.0)
+        for key, group in keys.items():
+            part[group] += 1e3 * stats[key][3] if key in stats else 0.0
+        parts.append(part)
+    ms = {k: float(np.median([p[k] for p in parts])) for k in parts[0]}
     wall = 1e3 * float(np.median(times))
-    passes = 3 * cfg.inner_steps + 3 if cfg.first_order else 3 * (3 * cfg.inner_steps + 1)   # as bench_meta_iteration
-    flops = B * passes * network.count_flops(net_cfg, T)
+    flops = train.meta_gradient_flops(cfg, net_cfg, T, B)
     result = {"profile": profile, "shard_tasks": B, "inner_steps": cfg.inner_steps, "inner_params": cfg.inner_params,
               "first_order": cfg.first_order, "shard_ms": round(wall, 1)}
     result.update({k + "_ms": round(v, 1) for k, v in ms.items()})

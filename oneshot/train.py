@@ -384,31 +384,45 @@ def _truncate_log(path, iteration):
 
 # --- benchmark ---------------------------------------------------------------------------------------
 
-def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, **overrides):
-    """Median seconds per second-order meta-iteration on synthetic data, and GFLOP/s.
+def synthetic_demos(rng, tasks, T, image_size):
+    """Random demos shaped like one side of a meta-batch, for timing: images (tasks, T, H, W, 3) in
+    [0, 1), states (tasks, T, 6), torques (tasks, T, 2), all float32."""
+    return (rng.random((tasks, T, image_size, image_size, 3), dtype=np.float32),
+            rng.standard_normal((tasks, T, 6), dtype=np.float32),
+            rng.standard_normal((tasks, T, 2), dtype=np.float32))
 
-    FLOPs are estimated as 3 (3 s + 1) forward passes per task for s inner steps: each inner step
-    records a forward and a backward pass (~3 forward passes), the outer loss one more, and the
-    meta-gradient's backward pass costs about twice the recorded forward graph. First order: the
-    inner steps are not recorded, so 3 s + 3 (inner forward+backward, outer forward+backward).
+
+def meta_gradient_flops(cfg, net_cfg, T, tasks):
+    """Estimated floating-point operations of the meta-gradient over `tasks` tasks of T frames.
+
+    3 (3 s + 1) forward passes per task for s inner steps: each inner step records a forward and a
+    backward pass (~3 forward passes), the outer loss one more, and the meta-gradient's backward pass
+    costs about twice the recorded forward graph. First order: the inner steps are not recorded, so
+    3 s + 3 (inner forward+backward, outer forward+backward). Matrix products only (`count_flops`).
     """
-    _tune_malloc()
+    passes = 3 * cfg.inner_steps + 3 if cfg.first_order else 3 * (3 * cfg.inner_steps + 1)
+    return tasks * passes * network.count_flops(net_cfg, T)
+
+
+def bench_setup(profile, image_size, **overrides):
+    """(cfg, net_cfg, params, rng) for timing a profile (with overridden fields) on synthetic data."""
     cfg = dataclasses.replace(PROFILES[profile], **overrides)
     rng = np.random.default_rng(0)
     net_cfg = network.NetworkConfig(image_size=image_size, bias_transform=cfg.bias_transform,
                                     feature_points=cfg.feature_points)
-    params = initial_params(cfg, net_cfg, rng)
+    return cfg, net_cfg, initial_params(cfg, net_cfg, rng), rng
+
+
+def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, **overrides):
+    """Median seconds per second-order meta-iteration on synthetic data, and GFLOP/s
+    (`meta_gradient_flops`)."""
+    _tune_malloc()
+    cfg, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
     B = cfg.meta_batch
-
-    def demos():
-        return (rng.random((B, T, image_size, image_size, 3), dtype=np.float32),
-                rng.standard_normal((B, T, 6), dtype=np.float32),
-                rng.standard_normal((B, T, 2), dtype=np.float32))
-
     times, pool = [], make_pool(cfg)
     try:
         for _ in range(iterations + 2):
-            a, e = demos(), demos()
+            a, e = synthetic_demos(rng, B, T, image_size), synthetic_demos(rng, B, T, image_size)
             t = time.perf_counter()
             sharded_meta_gradient(params, a, e, cfg, pool)
             times.append(time.perf_counter() - t)
@@ -416,8 +430,7 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
         if pool is not None:
             pool.terminate()
     s = float(np.median(times[2:]))
-    passes = 3 * cfg.inner_steps + 3 if cfg.first_order else 3 * (3 * cfg.inner_steps + 1)
-    flops = B * passes * network.count_flops(net_cfg, T)
+    flops = meta_gradient_flops(cfg, net_cfg, T, B)
     return {"profile": profile, "meta_batch": B, "inner_steps": cfg.inner_steps, "inner_params": cfg.inner_params,
             "T": T, "image_size": image_size, "first_order": cfg.first_order, "shards": cfg.shards,
             "seconds_per_iteration": round(s, 4),
