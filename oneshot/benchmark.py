@@ -170,7 +170,7 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **ove
         shard()
         profiler.disable()
         stats = pstats.Stats(profiler).stats              # key -> (calls, calls, tottime, cumtime, callers)
-        part = dict.fromkeys(["matrix_products", "im2col_col2im", "other_layer_primitives"], 0.0)
+        part = dict.fromkeys([*groups, "other_layer_primitives"], 0.0)
         for key, group in keys.items():
             part[group] += 1e3 * stats[key][3] if key in stats else 0.0
         parts.append(part)
