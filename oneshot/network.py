@@ -182,6 +182,13 @@ def col2im(cols, x_shape, kernel, stride, padding):
     cols: (N * H_out * W_out, kernel * kernel * C) -> (N, H, W, C) with x_shape = (N, H, W, C).
     Overlapping patches add up; contributions that fall on the zero padding are dropped.
     """
+    if (kernel, stride, padding) == (3, 2, 1) and x_shape[1] % 2 == 0 and x_shape[2] % 2 == 0:
+        return _col2im_3x3_stride2(cols, x_shape)           # the network's layers: the same numbers, faster
+    return _col2im_any(cols, x_shape, kernel, stride, padding)
+
+
+def _col2im_any(cols, x_shape, kernel, stride, padding):
+    """`col2im` for any kernel, stride and padding: one vectorised add per block of taps."""
     n, h, w, c = x_shape
     h_out = (h + 2 * padding - kernel) // stride + 1
     w_out = (w + 2 * padding - kernel) // stride + 1
@@ -202,6 +209,36 @@ def col2im(cols, x_shape, kernel, stride, padding):
             x_pad[:, rows, q : q + w_out, :m] += cols[:, :, :, dy, q * stride * c : q * stride * c + m]
     x_pad = x_pad.reshape(n, h + 2 * padding, width, c)
     return x_pad[:, padding : padding + h, padding : padding + w, :]
+
+
+def _col2im_3x3_stride2(cols, x_shape):
+    """`col2im` for 3x3 kernels, stride 2, padding 1 and an even H and W (every layer of the policy):
+    the same numbers as `_col2im_any`, bit for bit, written output pixel by pixel instead of tap by tap.
+
+    Output row 2a receives tap row dy = 1 of patch row a; output row 2a + 1 receives dy = 0 of patch
+    row a + 1 (none in the last row) and dy = 2 of patch row a; columns likewise. So each of the four
+    phases of the output (even or odd row, even or odd column) sums 1, 2 or 4 taps, and is written
+    once, its taps added in `_col2im_any`'s order (dy, then dx, ascending): no zeroed padded image, no
+    read-modify-write of it per tap, no padding to cut off, and a contiguous result. 1.3x faster on
+    (60, 16, 16, 40), 1.7x on (60, 8, 8, 40) (docs/network.md, "Speed").
+    """
+    n, h, w, c = x_shape
+    t = cols.reshape(n, h // 2, w // 2, 3, 3 * c)
+    tap = lambda dy, dx: t[:, :, :, dy, dx * c : (dx + 1) * c]           # (N, H/2, W/2, C) views
+    x = np.empty((n, h // 2, 2, w // 2, 2, c), cols.dtype)              # x[:, a, ry, b, rx] = pixel
+    x[:, :, 0, :, 0] = tap(1, 1)
+    np.add(tap(1, 0)[:, :, 1:], tap(1, 2)[:, :, :-1], out=x[:, :, 0, :-1, 1])
+    x[:, :, 0, -1, 1] = tap(1, 2)[:, :, -1]
+    np.add(tap(0, 1)[:, 1:], tap(2, 1)[:, :-1], out=x[:, :-1, 1, :, 0])
+    x[:, -1, 1, :, 0] = tap(2, 1)[:, -1]
+    odd = x[:, :-1, 1, :-1, 1]                                          # 4 taps: ((00 + 02) + 20) + 22
+    np.add(tap(0, 0)[:, 1:, 1:], tap(0, 2)[:, 1:, :-1], out=odd)
+    odd += tap(2, 0)[:, :-1, 1:]
+    odd += tap(2, 2)[:, :-1, :-1]
+    np.add(tap(2, 0)[:, -1, 1:], tap(2, 2)[:, -1, :-1], out=x[:, -1, 1, :-1, 1])
+    np.add(tap(0, 2)[:, 1:, -1], tap(2, 2)[:, :-1, -1], out=x[:, :-1, 1, -1, 1])
+    x[:, -1, 1, -1, 1] = tap(2, 2)[:, -1, -1]
+    return x.reshape(n, h, w, c)
 
 
 # Both maps are linear, so each one's VJP is the other one applied to the incoming gradient. Because

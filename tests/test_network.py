@@ -14,6 +14,8 @@ from autograd.test_util import check_grads
 
 from oneshot.network import (
     NetworkConfig,
+    _col2im_3x3_stride2,
+    _col2im_any,
     add_bias,
     bias_grad,
     broadcast_bias,
@@ -74,7 +76,8 @@ def test_conv2d_matches_naive_loops(stride, size):
 
 
 @pytest.mark.parametrize("shape, kernel, stride", [((2, 7, 6, 3), 3, 2), ((1, 8, 8, 2), 3, 2), ((2, 5, 5, 3), 3, 1),
-                                                   ((2, 9, 8, 2), 5, 3), ((1, 6, 7, 2), 5, 2), ((1, 4, 4, 1), 1, 2)])
+                                                   ((2, 9, 8, 2), 5, 3), ((1, 6, 7, 2), 5, 2), ((1, 4, 4, 1), 1, 2),
+                                                   ((2, 6, 4, 3), 3, 2)])
 def test_im2col_col2im_are_adjoint(shape, kernel, stride):
     # <im2col(x), y> == <x, col2im(y)> for every x, y: col2im is exactly the transpose of im2col.
     # Kernels that are not a multiple of the stride exercise col2im's partial blocks of taps.
@@ -86,10 +89,27 @@ def test_im2col_col2im_are_adjoint(shape, kernel, stride):
     assert lhs == pytest.approx(rhs, rel=1e-12)
 
 
-def test_conv_layer_second_order_gradients():
+@pytest.mark.parametrize("shape, dtype", [((1, 2, 2, 1), np.float64), ((2, 4, 6, 3), np.float64),
+                                          ((3, 16, 16, 40), np.float32), ((2, 8, 4, 5), np.float32)])
+def test_col2im_fast_path_gives_the_same_bits(shape, dtype):
+    # The policy's layers (3x3, stride 2, even sides) take `_col2im_3x3_stride2`, which must give
+    # exactly the numbers of the general scatter-add, bit for bit: otherwise retraining with the same
+    # seed would no longer reproduce the shipped policy.
+    rng = np.random.default_rng(5)
+    n, h, w, c = shape
+    cols = rng.standard_normal((n * (h // 2) * (w // 2), 9 * c)).astype(dtype)
+    fast = _col2im_3x3_stride2(cols, shape)
+    slow = np.ascontiguousarray(_col2im_any(cols, shape, 3, 2, 1))
+    assert fast.shape == shape and fast.dtype == dtype
+    assert fast.tobytes() == slow.tobytes()
+    assert col2im(cols, shape, 3, 2, 1).tobytes() == fast.tobytes()         # and col2im takes it
+
+
+@pytest.mark.parametrize("shape", [(2, 5, 6, 2), (2, 6, 4, 2)])    # odd side: general col2im; even: fast
+def test_conv_layer_second_order_gradients(shape):
     # The conv layer on a non-input activation exercises im2col, col2im and their mutual VJPs.
     rng = np.random.default_rng(3)
-    x = rng.standard_normal((2, 5, 6, 2))
+    x = rng.standard_normal(shape)
     w = rng.standard_normal((3, 3, 2, 3))
     b = rng.standard_normal(3)
     check_grads(lambda x, w, b: anp.sum(anp.sin(conv2d(x, w, b, 2))), modes=["rev"], order=2)(x, w, b)
