@@ -225,7 +225,7 @@ def _col2im_3x3_stride2(cols, x_shape):
     n, h, w, c = x_shape
     t = cols.reshape(n, h // 2, w // 2, 3, 3 * c)
     tap = lambda dy, dx: t[:, :, :, dy, dx * c : (dx + 1) * c]           # (N, H/2, W/2, C) views
-    x = np.empty((n, h // 2, 2, w // 2, 2, c), cols.dtype)              # x[:, a, ry, b, rx] = pixel
+    x = np.empty((n, h // 2, 2, w // 2, 2, c), cols.dtype)     # x[:, a, ry, b, rx]: pixel (2a+ry, 2b+rx)
     x[:, :, 0, :, 0] = tap(1, 1)
     np.add(tap(1, 0)[:, :, 1:], tap(1, 2)[:, :, :-1], out=x[:, :, 0, :-1, 1])
     x[:, :, 0, -1, 1] = tap(1, 2)[:, :, -1]
