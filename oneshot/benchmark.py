@@ -4,7 +4,7 @@ These measure what tests should not time: medians of repeated runs on this machi
     expert   iLQG solve time (median over scenes) and the expert's success rate over many scenes
     collect  wall time to collect a dataset of demonstrations with all cores
     maml     seconds per second-order meta-iteration, GFLOP/s and peak memory; with --breakdown, where
-             the time of one shard of the meta-batch goes
+             the time of one process's part of it goes (its block of every demo's frames)
     privileged  ceilings for the policy network: plain behavioural cloning on all meta-training
              demos when the policy is GIVEN what one-shot imitation must infer (the target's position,
              or its colour), scored on held-out colours. If these are high, what remains hard is the
@@ -123,32 +123,32 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
 
 
 def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **overrides):
-    """Where the time of one meta-gradient shard goes: the largest shard of the profile's meta-batch
-    (the one the training process computes itself), computed in this process with one BLAS thread,
-    as during training.
+    """Where the time of one process's part of a meta-gradient goes: the training process's block of
+    frames of every task of the profile's meta-batch (`oneshot.shards`), computed in this process
+    alone (without the exchanges with the other processes) with one BLAS thread, as during training.
 
-    The shard is computed `iterations` times as it is (median wall time) and, alternately with those,
+    The part is computed `iterations` times as it is (median wall time) and, alternately with those,
     `iterations` times under Python's cProfile, which gives the time spent inside each of the network's
     primitives (`oneshot.network`, `oneshot.maml`; medians): the matrix products, im2col/col2im and the
     rest of the layer primitives (bias, ReLU, masks, concatenation, eq. (1)). The remainder of the wall
     time is autograd's own Python bookkeeping, its sums of gradients and NumPy's small operations (the
-    loss, reshapes). Returns milliseconds per shard.
+    loss, reshapes). Returns milliseconds per part.
     """
     import cProfile
     import pstats
 
-    from oneshot import imitation, maml, network, train
+    from oneshot import maml, network, shards, train
 
     train._tune_malloc()
-    train._blas_threads(1)
+    shards.blas_threads(1)
     cfg, net_cfg, params, rng = train.bench_setup(profile, image_size, **overrides)
     batch = [train.synthetic_demos(rng, cfg.meta_batch, T, image_size) for _ in range(2)]
-    adapt, evaluate, tasks = train.shard_meta_batch(*batch, cfg.shards)[-1]   # the training process's shard
-    B = int(tasks)
+    adapt, evaluate = (shards.split_frames(demos, cfg.shards)[-1] for demos in batch)  # the training process's part
+    B, frames = adapt[0].shape[:2]
+    settings = (cfg.alpha, cfg.inner_steps, cfg.first_order, train.inner_only(cfg))
 
-    def shard():
-        return maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, cfg.alpha,
-                                          cfg.inner_steps, cfg.first_order, train.inner_only(cfg))
+    def compute():
+        return shards.part(params, adapt, evaluate, settings)
 
     groups = {"matrix_products": ("matmul", "matmul_dx", "matmul_dw"), "im2col_col2im": ("im2col", "col2im")}
     keys = {}                                             # cProfile's key of each primitive -> its group
@@ -159,15 +159,15 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **ove
                 keys[(code.co_filename, code.co_firstlineno, code.co_name)] = next(
                     (g for g, names in groups.items() if name in names), "other_layer_primitives")
     for _ in range(2):
-        shard()
+        compute()
     times, parts = [], []
     for _ in range(iterations):                           # plain and profiled runs alternate: the host's
         t = time.perf_counter()                           # speed drifts, and both should see the same
-        shard()
+        compute()
         times.append(time.perf_counter() - t)
         profiler = cProfile.Profile()
         profiler.enable()
-        shard()
+        compute()
         profiler.disable()
         stats = pstats.Stats(profiler).stats              # key -> (calls, calls, tottime, cumtime, callers)
         part = dict.fromkeys([*groups, "other_layer_primitives"], 0.0)
@@ -176,9 +176,9 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **ove
         parts.append(part)
     ms = {k: float(np.median([p[k] for p in parts])) for k in parts[0]}
     wall = 1e3 * float(np.median(times))
-    flops = train.meta_gradient_flops(cfg, net_cfg, T, B)
-    result = {"profile": profile, "shard_tasks": B, "inner_steps": cfg.inner_steps, "inner_params": cfg.inner_params,
-              "first_order": cfg.first_order, "shard_ms": round(wall, 1)}
+    flops = train.meta_gradient_flops(cfg, net_cfg, frames, B)
+    result = {"profile": profile, "tasks": int(B), "frames": int(frames), "inner_steps": cfg.inner_steps,
+              "inner_params": cfg.inner_params, "first_order": cfg.first_order, "part_ms": round(wall, 1)}
     result.update({k + "_ms": round(v, 1) for k, v in ms.items()})
     result["autograd_and_small_ops_ms"] = round(wall - sum(ms.values()), 1)
     result["matrix_products_gflop_per_second"] = round(flops / 1e6 / ms["matrix_products"], 1)
@@ -224,9 +224,9 @@ def main(argv=None):
                    help="override which parameters the inner steps adapt")
     m.add_argument("--meta-batch", type=int, default=None, help="override the profile's meta-batch")
     m.add_argument("--shards", type=int, default=None,
-                   help="override the profile's shards (processes sharing the meta-batch; 1 = one process)")
+                   help="override the profile's shards (processes sharing each meta-gradient; 1 = one process)")
     m.add_argument("--breakdown", action="store_true",
-                   help="instead: where the time of the training process's shard goes (matrix products, "
+                   help="instead: where the time of the training process's part goes (matrix products, "
                         "im2col/col2im, other layer primitives, autograd's Python)")
     v = sub.add_parser("privileged", help="ceiling: behavioural cloning given the target's position or colour")
     v.add_argument("--given", choices=("position", "colour"), default="colour")

@@ -233,7 +233,8 @@ def value_and_grads(fun, arrays, *args):
     return value, {k: grads[k] if k in grads else vspace(v).zeros() for k, v in arrays.items()}
 
 
-def meta_objective_batched(params, adapt, evaluate, loss_tasks, alpha, steps, first_order=False, only=None):
+def meta_objective_batched(params, adapt, evaluate, loss_tasks, alpha, steps, first_order=False, only=None,
+                           reduce=None):
     """`meta_objective` for a whole meta-batch in one computation graph (same value, faster).
 
     Each of the B tasks gets its own copy of the parameters (a leading task axis). Task b's loss
@@ -246,6 +247,9 @@ def meta_objective_batched(params, adapt, evaluate, loss_tasks, alpha, steps, fi
     loss_tasks(params_b, demos) -> scalar: the SUM over tasks of eq. (2), where every array of params_b
         has a leading task axis of size B.
     only: as in `inner_update`; parameters that do not adapt stay shared (no task axis).
+    reduce: None, or a differentiable function applied to every inner gradient (B, ...) before eq. (1):
+        when several processes each hold some of the demos' frames, the sum over processes of their
+        parts (`oneshot.shards`), since eq. (2) sums over frames.
     Returns the mean over tasks of the post-adaptation loss, like `meta_objective`.
     """
     alpha, _ = _check_step(alpha, steps, None)
@@ -255,6 +259,8 @@ def meta_objective_batched(params, adapt, evaluate, loss_tasks, alpha, steps, fi
     loss = lambda sub, d: loss_tasks({**fixed, **sub}, d)
     for _ in range(steps):
         _, g = value_and_grads(loss, {k: getval(v) for k, v in adapted.items()} if first_order else adapted, adapt)
+        if reduce is not None:
+            g = {k: reduce(v) for k, v in g.items()}
         adapted = {k: _step(adapted[k], g[k], step[k]) for k in adapted}
     return loss_tasks({**fixed, **adapted}, evaluate) / B
 
@@ -265,7 +271,8 @@ def _batch_size(demos):
     return int(np.shape(first)[0])
 
 
-def meta_gradient_batched(params, adapt, evaluate, loss_tasks, alpha, steps, first_order=False, only=None):
+def meta_gradient_batched(params, adapt, evaluate, loss_tasks, alpha, steps, first_order=False, only=None,
+                          reduce=None):
     """Value and gradient of `meta_objective_batched` with respect to `params` (a dict like it)."""
     return value_and_grads(meta_objective_batched, params, adapt, evaluate, loss_tasks, alpha, steps,
-                           first_order, only)
+                           first_order, only, reduce)

@@ -13,7 +13,6 @@ import ctypes
 import dataclasses
 import json
 import math
-import multiprocessing
 import os
 import sys
 import time
@@ -22,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from oneshot import collect, data, imitation, maml, network, optim
+from oneshot import collect, data, imitation, maml, network, optim, shards
 from oneshot.evaluate import one_shot_success
 from oneshot.expert import ExpertConfig
 
@@ -57,8 +56,8 @@ class TrainConfig:
     eval_every: int = 500                    # held-out one-shot success during training
     eval_trials: int = 5                     # trials per held-out colour in those evaluations (60 in all)
     checkpoint_every: int = 100
-    shards: int = 2                          # the meta-batch is split in this many parts, computed by
-                                             # up to `shards` processes (results depend on shards only)
+    shards: int = 2                          # processes sharing each meta-gradient, each on its block of
+                                             # every demo's frames (`oneshot.shards`; results depend on it)
 
 
 # MIL's meta-learning settings (TrainConfig's defaults), 2000 iterations.
@@ -208,77 +207,6 @@ def _tune_malloc():
         pass
 
 
-# --- the meta-gradient, in shards ----------------------------------------------------------------
-
-def _shard_gradient(job):
-    """Mean meta-loss and meta-gradient over one shard of the meta-batch (runs in a worker)."""
-    params, adapt, evaluate, alpha, steps, first_order, only = job
-    return maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, alpha, steps,
-                                      first_order, only)
-
-
-def shard_meta_batch(adapt, evaluate, shards):
-    """Split a meta-batch (tuples of arrays with a leading task axis) into `shards` contiguous parts."""
-    bounds = np.linspace(0, len(adapt[0]), shards + 1).astype(int)
-    return [(tuple(a[i:j] for a in adapt), tuple(e[i:j] for e in evaluate), j - i)
-            for i, j in zip(bounds[:-1], bounds[1:]) if j > i]
-
-
-def sharded_meta_gradient(params, adapt, evaluate, cfg, pool=None):
-    """The meta-objective (mean over tasks) and its gradient, computed shard by shard.
-
-    One process runs autograd's Python at about one core; two processes on two shards of the
-    meta-batch use both (measured: `python -m oneshot.benchmark maml`). The shards' means are
-    combined in a fixed order weighted by their sizes, so the result depends on cfg.shards only,
-    not on whether a pool is used.
-    """
-    parts = shard_meta_batch(adapt, evaluate, cfg.shards)
-    jobs = [(params, a, e, cfg.alpha, cfg.inner_steps, cfg.first_order, inner_only(cfg)) for a, e, _ in parts]
-    if pool is not None and len(jobs) > 1:
-        # The workers take every shard but the last (the largest), which this process computes
-        # meanwhile: one fewer round trip of parameters, demos and gradients between processes.
-        pending = pool.map_async(_shard_gradient, jobs[:-1])
-        last = _shard_gradient(jobs[-1])
-        results = pending.get() + [last]
-    else:
-        results = [_shard_gradient(j) for j in jobs]
-    B = sum(n for _, _, n in parts)
-    loss = sum(v * (n / B) for (v, _), (_, _, n) in zip(results, parts))
-    grads = {k: sum(g[k] * np.float32(n / B) for (_, g), (_, _, n) in zip(results, parts)) for k in params}
-    return loss, grads
-
-
-def _blas_threads(n):
-    """Set OpenBLAS's thread count in this process, where NumPy's bundled OpenBLAS allows it.
-
-    Each shard worker keeps to one BLAS thread: two workers with two spinning BLAS threads each
-    on two cores were 5x slower than one process (`python -m oneshot.benchmark maml`).
-    """
-    import glob
-    folder = os.path.join(os.path.dirname(np.__file__), os.pardir, "numpy.libs")
-    for path in glob.glob(os.path.join(folder, "*openblas*")):
-        try:
-            lib = ctypes.CDLL(path)
-            for name in ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
-                         "openblas_set_num_threads"):
-                if hasattr(lib, name):
-                    getattr(lib, name)(n)
-                    return True
-        except OSError:
-            pass
-    return False
-
-
-def make_pool(cfg):
-    """Worker processes for all shards but one, which the calling process computes (None when one
-    process is enough). Every process, this one included, keeps to one BLAS thread (`_blas_threads`)."""
-    if cfg.shards < 2 or (os.cpu_count() or 1) < 2:
-        return None
-    _blas_threads(1)
-    return multiprocessing.get_context("fork").Pool(min(cfg.shards, os.cpu_count()) - 1,
-                                                    initializer=_blas_threads, initargs=(1,))
-
-
 # --- training --------------------------------------------------------------------------------------
 
 def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
@@ -329,12 +257,12 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
     bar = tqdm(range(start, end), initial=start, total=cfg.iterations, desc="meta-training",
                disable=not progress)
     t0 = time.perf_counter()
-    pool = make_pool(cfg)
+    pool = shards.make_pool(cfg)
     try:
         with open(log_path, "a") as log:
             for it in bar:
                 adapt_demos, eval_demos = imitation.sample_meta_batch(demos, rng, cfg.meta_batch)
-                loss, grads = sharded_meta_gradient(params, adapt_demos, eval_demos, cfg, pool)
+                loss, grads = shards.meta_gradient(params, adapt_demos, eval_demos, cfg, pool)
                 bad = [k for k, g in grads.items() if not np.all(np.isfinite(g))]
                 if not np.isfinite(loss) or bad:
                     raise TrainingDiverged(
@@ -363,7 +291,7 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
                     last_good = done
     finally:
         if pool is not None:
-            pool.terminate()
+            pool.close()
         bar.close()
     return params
 
@@ -420,16 +348,16 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
     _tune_malloc()
     cfg, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
     B = cfg.meta_batch
-    times, pool = [], make_pool(cfg)
+    times, pool = [], shards.make_pool(cfg)
     try:
         for _ in range(iterations + 2):
             a, e = synthetic_demos(rng, B, T, image_size), synthetic_demos(rng, B, T, image_size)
             t = time.perf_counter()
-            sharded_meta_gradient(params, a, e, cfg, pool)
+            shards.meta_gradient(params, a, e, cfg, pool)
             times.append(time.perf_counter() - t)
     finally:
         if pool is not None:
-            pool.terminate()
+            pool.close()
     s = float(np.median(times[2:]))
     flops = meta_gradient_flops(cfg, net_cfg, T, B)
     return {"profile": profile, "meta_batch": B, "inner_steps": cfg.inner_steps, "inner_params": cfg.inner_params,

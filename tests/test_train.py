@@ -35,8 +35,9 @@ def test_checkpoint_round_trip(tiny, tmp_path):
     assert (tmp_path / "run" / "checkpoint.npz").stat().st_mode & 0o777 == 0o666 & ~umask
 
 
-def test_resume_gives_the_parameters_of_an_uninterrupted_run(tiny, tmp_path):
-    cfg = dataclasses.replace(tiny, iterations=8, checkpoint_every=3)
+@pytest.mark.parametrize("shards", [1, 2])
+def test_resume_gives_the_parameters_of_an_uninterrupted_run(tiny, tmp_path, shards):
+    cfg = dataclasses.replace(tiny, iterations=8, checkpoint_every=3, shards=shards)
     whole = train.train(cfg, tmp_path / "whole", progress=False)
     train.train(cfg, tmp_path / "split", progress=False, stop_after=4)   # "killed" after iteration 4
     ckpt = train.load_checkpoint(tmp_path / "split" / "checkpoint.npz")
@@ -234,33 +235,6 @@ def test_adaptation_gain_scores_a_second_demo_before_and_after_adapting(tiny, tm
     assert np.isclose(same["before"], same["after"], rtol=1e-6)
 
 
-def test_sharded_meta_gradient_is_the_same_in_a_pool_and_close_to_unsharded(rng):
-    from oneshot import network
-    cfg = dataclasses.replace(train.PROFILES["default"], shards=2)
-    params = network.init_params(network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,)), rng)
-
-    def demos():
-        return (rng.random((5, 3, 8, 8, 3), dtype=np.float32), rng.normal(size=(5, 3, 6)).astype(np.float32),
-                rng.normal(size=(5, 3, 2)).astype(np.float32))
-
-    adapt, evaluate = demos(), demos()
-    assert [n for _, _, n in train.shard_meta_batch(adapt, evaluate, 2)] == [2, 3]
-    local = train.sharded_meta_gradient(params, adapt, evaluate, cfg)
-    pool = train.make_pool(cfg)
-    try:
-        pooled = train.sharded_meta_gradient(params, adapt, evaluate, cfg, pool) if pool else local
-    finally:
-        if pool:
-            pool.terminate()
-    assert local[0] == pooled[0] and _same(local[1], pooled[1])            # processes change nothing
-    whole = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, cfg.alpha,
-                                       cfg.inner_steps, only=train.inner_only(cfg))
-    assert local[0] == pytest.approx(float(whole[0]), rel=1e-5)
-    for k in params:   # float32 sums in another order: error relative to the array's largest entry
-        scale = max(1.0, float(np.abs(whole[1][k]).max()))
-        np.testing.assert_allclose(local[1][k], whole[1][k], rtol=1e-4, atol=1e-6 * scale)
-
-
 def test_demo_adapts_a_checkpoint_and_reports_counts(tiny, tmp_path, capsys):
     from oneshot import demo
     train.train(dataclasses.replace(tiny, iterations=1), tmp_path / "run", progress=False)
@@ -282,16 +256,16 @@ def test_maml_benchmark_reports_the_settings_it_timed(capsys):
     assert result["seconds_per_iteration"] > 0 and result["gflop_per_second"] > 0
 
 
-def test_maml_breakdown_finds_every_part_of_a_shard():
+def test_maml_breakdown_finds_every_part_of_a_meta_gradient():
     """`--breakdown` times the network's primitives by name under cProfile: if a primitive were renamed
     or moved, its group would silently read 0 ms. Run in its own process: it sets BLAS to one thread."""
     out = subprocess.run([sys.executable, "-m", "oneshot.benchmark", "maml", "--breakdown", "--profile", "tiny",
                           "--iterations", "1", "--inner-steps", "1"], capture_output=True, text=True, check=True)
     result = json.loads(out.stdout)
-    assert (result["profile"], result["shard_tasks"], result["inner_steps"]) == ("tiny", 2, 1)
+    assert (result["profile"], result["tasks"], result["frames"], result["inner_steps"]) == ("tiny", 2, 20, 1)
     parts = ["matrix_products_ms", "im2col_col2im_ms", "other_layer_primitives_ms"]
-    assert all(result[k] > 0 for k in parts + ["shard_ms", "matrix_products_gflop_per_second"])
-    assert sum(result[k] for k in parts) + result["autograd_and_small_ops_ms"] == pytest.approx(result["shard_ms"], abs=0.5)
+    assert all(result[k] > 0 for k in parts + ["part_ms", "matrix_products_gflop_per_second"])
+    assert sum(result[k] for k in parts) + result["autograd_and_small_ops_ms"] == pytest.approx(result["part_ms"], abs=0.5)
 
 
 def test_the_shipped_policy_is_the_default_profiles_run():
