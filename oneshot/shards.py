@@ -25,6 +25,7 @@ import mmap
 import multiprocessing
 import os
 import select
+import signal
 import traceback
 
 import numpy as np
@@ -83,9 +84,10 @@ class Exchange:
                 self.broken = True
                 raise ShardError(f"shard process {j} " + {b"!": "failed", b"x": "died"}.get(
                     token, f"did not answer within {TIMEOUT:.0f} s") + " during a meta-gradient")
-        total = self._slot(0, parity, x.dtype, x.size) + self._slot(1, parity, x.dtype, x.size)
-        for j in range(2, self.ranks):
-            total += self._slot(j, parity, x.dtype, x.size)
+        parts = [x.ravel() if j == self.rank else self._slot(j, parity, x.dtype, x.size) for j in range(self.ranks)]
+        total = parts[0] + parts[1]
+        for p in parts[2:]:
+            total += p
         return total.reshape(x.shape)
 
     def _receive(self, fd, spins=2000):
@@ -256,6 +258,7 @@ class Pool:
 
 def _serve(exchange, rank, params, adapt, evaluate, conn):
     """A worker's loop: wait for the go (the settings), compute its part from the mailbox, repeat."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)      # Ctrl-C is for the training process, which stops us
     blas_threads(1)
     exchange.rank = rank
     while True:
@@ -274,6 +277,9 @@ def _serve(exchange, rank, params, adapt, evaluate, conn):
 
 def make_pool(cfg):
     """A `Pool` for cfg.shards processes, or None when cfg.shards == 1 (one process does everything)."""
+    if isinstance(cfg.shards, bool) or not isinstance(cfg.shards, int) or cfg.shards < 1:
+        raise ValueError(f"shards is the number of processes sharing each meta-gradient, an int >= 1; "
+                         f"got {cfg.shards!r}")
     return Pool(cfg.shards) if cfg.shards > 1 else None
 
 

@@ -386,7 +386,7 @@ def main(argv=None):
     t0 = time.perf_counter()
     try:
         train(cfg, run, resume=args.resume)
-    except (TrainingDiverged, FileExistsError, ValueError, FileNotFoundError) as e:
+    except (TrainingDiverged, FileExistsError, ValueError, FileNotFoundError, shards.ShardError) as e:
         sys.exit(f"error: {e}")
     print(f"trained {cfg.iterations} meta-iterations in {time.perf_counter() - t0:.0f} s; "
           f"checkpoint: {os.path.join(run, 'checkpoint.npz')}")

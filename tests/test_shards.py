@@ -114,4 +114,6 @@ def test_bad_settings_name_the_fix(rng):
         shards.split_frames(adapt, 5)
     with pytest.raises(ValueError, match="shards >= 2"):
         shards.Pool(1)
+    with pytest.raises(ValueError, match="an int >= 1; got 0"):
+        shards.make_pool(dataclasses.replace(cfg, shards=0))
     assert [d[0].shape[1] for d in shards.split_frames(adapt, 3)] == [1, 1, 2]
