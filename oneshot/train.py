@@ -68,8 +68,8 @@ PROFILES = {
     # convolutions"): feature points and a bias transformation (MIL's released code), and ONE inner
     # step of alpha = 0.3 on the FIRST convolution layer only, so that adaptation can change WHAT the
     # policy looks for (a colour) but not WHERE it goes (the demo's positions); adapting one layer
-    # makes an iteration 1.2-1.3x faster than adapting all three. 10000 iterations: 16-21 min on 2 cores
-    # depending on the host's speed; over ten training runs 90.9% held out (docs/training.md).
+    # makes an iteration 1.2-1.3x faster than adapting all three. 10000 iterations: 14.9 min alone on 2
+    # cores (up to 21 min on slow hours of the shared host); over ten training runs 90.9% held out (docs/training.md).
     # The policy acts with a moving average of the parameters (decay 0.999): 2-3 points held-out on
     # average over three training seeds, and a lower loss after adapting in each. Adam's step size is
     # 3e-3, three times Adam's (and MIL's) default: held-out success over three seeds rose from 85.0%
