@@ -60,8 +60,6 @@ class Exchange:
         self.ranks, self.slot_bytes = ranks, int(slot_bytes)
         self.memory = mmap.mmap(-1, ranks * 2 * self.slot_bytes)      # anonymous, shared with children
         self.pipes = {(i, j): os.pipe() for i in range(ranks) for j in range(ranks) if i != j}
-        for reading, _ in self.pipes.values():
-            os.set_blocking(reading, False)
         self.rank, self.count, self.broken, self.watch = ranks - 1, 0, False, []
 
     def _slot(self, rank, parity, dtype, size):
@@ -92,14 +90,9 @@ class Exchange:
             total += p
         return total.reshape(x.shape)
 
-    def _receive(self, fd, spins=2000):
-        """One byte from the non-blocking pipe fd: polled for a moment first (the other process is
-        usually about to write it), then waited for, watching `watch` (the workers' sentinels)."""
-        for _ in range(spins):
-            try:
-                return os.read(fd, 1)
-            except BlockingIOError:
-                pass
+    def _receive(self, fd):
+        """One byte from the pipe fd, waited for while watching `watch` (the workers' sentinels: a
+        worker that dies is reported instead of waited for)."""
         ready = select.select([fd, *self.watch], [], [], TIMEOUT)[0]
         return os.read(fd, 1) if fd in ready else b"x" if ready else b""
 

@@ -60,7 +60,6 @@ def test_float32_frame_shards_are_close_to_one_process(rng):
 
 class _Twice:
     """Stands in for an Exchange of two processes holding the same x: the sum is 2 x."""
-    broken = False
 
     def sum(self, x):
         return 2 * np.asarray(x)
