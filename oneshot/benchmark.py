@@ -199,6 +199,23 @@ def _sgemm_rate(n=1024, repeats=10):
     return 2 * n ** 3 / float(np.median(times)) / 1e9
 
 
+def machine():
+    """What the figures were measured on: CPU model, cores, NumPy and its BLAS, and the widest SIMD
+    extensions NumPy found. Float32 results differ in the last bits between CPUs whose BLAS and NumPy
+    pick different kernels (AVX-512 or not), and training amplifies such differences (docs/training.md)."""
+    cpu = "unknown"
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    config = np.show_config(mode="dicts")
+    blas = config.get("Build Dependencies", {}).get("blas", {})
+    return {"cpu": cpu, "cores": os.cpu_count(), "numpy": np.__version__,
+            "blas": f"{blas.get('name', '?')} {blas.get('version', '?')}",
+            "simd": config.get("SIMD Extensions", {}).get("found", [])}
+
+
 def peak_memory_mb():
     """Peak resident memory (MB) of this process and of the largest of its finished worker processes."""
     return (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
@@ -252,6 +269,7 @@ def main(argv=None):
     main_mb, worker_mb = peak_memory_mb()
     result["peak_memory_mb"] = round(main_mb, 1)
     result["peak_worker_memory_mb"] = round(worker_mb, 1)
+    result["machine"] = machine()
     json.dump(result, sys.stdout, indent=1)
     print()
 

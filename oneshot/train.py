@@ -231,9 +231,12 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
         ckpt = load_checkpoint(ckpt_path)
         schedule = dict(iterations=cfg.iterations, log_every=cfg.log_every, eval_every=cfg.eval_every,
                         eval_trials=cfg.eval_trials, checkpoint_every=cfg.checkpoint_every)
-        if dataclasses.replace(ckpt["config"], **schedule) != cfg:
-            raise ValueError(f"{ckpt_path!r} was trained with a different config; resume with the same "
-                             f"profile and options (only iterations and the log/eval/checkpoint cadence "
+        stored = dataclasses.replace(ckpt["config"], **schedule)
+        if stored != cfg:
+            differ = ", ".join(f"{f.name}: checkpoint {getattr(stored, f.name)!r}, now {getattr(cfg, f.name)!r}"
+                               for f in dataclasses.fields(cfg) if getattr(stored, f.name) != getattr(cfg, f.name))
+            raise ValueError(f"{ckpt_path!r} was trained with a different config ({differ}); resume with the "
+                             f"same profile and options (only iterations and the log/eval/checkpoint cadence "
                              f"may change), or start a new run folder")
         params, adam, start, rng, net_cfg = (ckpt["params"], ckpt["adam"], ckpt["iteration"],
                                              ckpt["rng"], ckpt["network"])

@@ -48,7 +48,7 @@ def test_resume_gives_the_parameters_of_an_uninterrupted_run(tiny, tmp_path, sha
     assert [r["iteration"] for r in lines] == list(range(1, 9))          # no duplicated log lines
     with pytest.raises(FileExistsError, match="--resume"):
         train.train(cfg, tmp_path / "whole", progress=False)
-    with pytest.raises(ValueError, match="different config"):
+    with pytest.raises(ValueError, match=r"different config \(lr: checkpoint .*, now 0\.01\)"):
         train.train(dataclasses.replace(cfg, lr=0.01), tmp_path / "whole", resume=True, progress=False)
 
 
@@ -254,6 +254,8 @@ def test_maml_benchmark_reports_the_settings_it_timed(capsys):
     assert (result["inner_steps"], result["inner_params"], result["shards"], result["meta_batch"],
             result["first_order"]) == (1, "conv0", 1, 3, False)
     assert result["seconds_per_iteration"] > 0 and result["gflop_per_second"] > 0
+    machine = result["machine"]        # a figure names the machine it was measured on
+    assert machine["cores"] == os.cpu_count() and machine["numpy"] == np.__version__ and machine["cpu"]
 
 
 def test_maml_breakdown_finds_every_part_of_a_meta_gradient():
