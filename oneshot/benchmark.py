@@ -202,14 +202,18 @@ def _sgemm_rate(n=1024, repeats=10):
 def machine():
     """What the figures were measured on: CPU model, cores, NumPy and its BLAS, and the widest SIMD
     extensions NumPy found. Float32 results differ in the last bits between CPUs whose BLAS and NumPy
-    pick different kernels (AVX-512 or not), and training amplifies such differences (docs/training.md)."""
+    pick different kernels (e.g. with or without AVX-512), and training amplifies such differences
+    (docs/training.md)."""
     cpu = "unknown"
     try:
         with open("/proc/cpuinfo") as f:
             cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
     except OSError:
         pass
-    config = np.show_config(mode="dicts")
+    try:
+        config = np.show_config(mode="dicts")
+    except TypeError:                                    # NumPy < 1.26 only prints its config
+        config = {}
     blas = config.get("Build Dependencies", {}).get("blas", {})
     return {"cpu": cpu, "cores": os.cpu_count(), "numpy": np.__version__,
             "blas": f"{blas.get('name', '?')} {blas.get('version', '?')}",
