@@ -11,18 +11,84 @@ These measure what tests should not time: medians of repeated runs on this machi
              one-shot identification of the colour, i.e. meta-learning itself.
 """
 import argparse
+import cProfile
 import dataclasses
 import json
 import os
+import pstats
 import resource
 import sys
 import time
 
 import numpy as np
+from autograd import grad
 from tqdm import tqdm
 
-from oneshot import collect, expert
-from oneshot.world import ReachWorld, WorldConfig, is_success
+from oneshot import batched, collect, data, expert, host, imitation, layers, network, optim, palette, shards, train
+from oneshot.config import INNER_PARAMS, PROFILES, inner_only
+from oneshot.evaluate import wilson_interval
+from oneshot.world import ReachWorld, WorldConfig
+
+
+# ----------------------------------------------------------------------------------------------------
+# Meta-iterations: seconds, GFLOP/s, and where the time goes
+# ----------------------------------------------------------------------------------------------------
+
+
+def synthetic_demos(rng, tasks, T, image_size):
+    """Random demos shaped like one side of a meta-batch, for timing: images (tasks, T, H, W, 3) in
+    [0, 1), states (tasks, T, 6), torques (tasks, T, 2), all float32."""
+    return (rng.random((tasks, T, image_size, image_size, 3), dtype=np.float32),
+            rng.standard_normal((tasks, T, 6), dtype=np.float32),
+            rng.standard_normal((tasks, T, 2), dtype=np.float32))
+
+
+def meta_gradient_flops(cfg, net_cfg, T, tasks):
+    """Estimated floating-point operations of the meta-gradient over `tasks` tasks of T frames.
+
+    3 (3 s + 1) forward passes per task for s inner steps: each inner step records a forward and a
+    backward pass (~3 forward passes), the outer loss one more, and the meta-gradient's backward pass
+    costs about twice the recorded forward graph. First order: the inner steps are not recorded, so
+    3 s + 3 (inner forward+backward, outer forward+backward). Matrix products only (`count_flops`).
+    """
+    passes = 3 * cfg.inner_steps + 3 if cfg.first_order else 3 * (3 * cfg.inner_steps + 1)
+    return tasks * passes * network.count_flops(net_cfg, T)
+
+
+def bench_setup(profile, image_size, **overrides):
+    """(cfg, net_cfg, params, rng) for timing a profile (with overridden fields) on synthetic data."""
+    cfg = dataclasses.replace(PROFILES[profile], **overrides)
+    rng = np.random.default_rng(0)
+    net_cfg = network.NetworkConfig(image_size=image_size, bias_transform=cfg.bias_transform,
+                                    feature_points=cfg.feature_points)
+    return cfg, net_cfg, train.initial_params(cfg, net_cfg, rng), rng
+
+
+def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, **overrides):
+    """Median seconds per second-order meta-iteration on synthetic data, and GFLOP/s
+    (`meta_gradient_flops`)."""
+    host.tune_malloc()
+    cfg, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
+    B = cfg.meta_batch
+    times, pool = [], shards.make_pool(cfg.shards)
+    settings = (cfg.alpha, cfg.inner_steps, cfg.first_order, inner_only(cfg))
+    try:
+        for _ in range(iterations + 2):
+            a, e = synthetic_demos(rng, B, T, image_size), synthetic_demos(rng, B, T, image_size)
+            t = time.perf_counter()
+            shards.meta_gradient(params, a, e, settings, cfg.shards, pool)
+            times.append(time.perf_counter() - t)
+    finally:
+        if pool is not None:
+            pool.close()
+    s = float(np.median(times[2:]))
+    flops = meta_gradient_flops(cfg, net_cfg, T, B)
+    return {"profile": profile, "meta_batch": B, "inner_steps": cfg.inner_steps, "inner_params": cfg.inner_params,
+            "T": T, "image_size": image_size, "first_order": cfg.first_order, "shards": cfg.shards,
+            "seconds_per_iteration": round(s, 4),
+            "gflop_per_iteration": round(flops / 1e9, 2), "gflop_per_second": round(flops / 1e9 / s, 1)}
+
+
 
 
 def bench_expert(scenes=500, seed=0):
@@ -42,8 +108,8 @@ def bench_expert(scenes=500, seed=0):
 
 
 def bench_collect(demos=1000, workers=None):
-    """Wall time to collect about `demos` demonstrations (all 36 training colours) with `workers` processes."""
-    tasks = 36
+    """Wall time to collect about `demos` demonstrations (every training colour) with `workers` processes."""
+    tasks = len(palette.split_colours("train"))
     per_task = -(-demos // tasks)
     t0 = time.perf_counter()
     d = collect.collect(tasks, per_task, "train", 0, workers, progress=True)
@@ -63,17 +129,10 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
     Trains the policy network (`oneshot.network`) on all demos of `train_data` with Adam, `batch`
     demos per step, then runs it in `trials` new scenes of held-out colours.
     """
-    import autograd.numpy as anp
-    from autograd import grad
-
-    from oneshot import data, imitation, network, optim, palette
-    from oneshot.evaluate import EVAL_SEED_OFFSET, wilson_interval, world_config_of
-    from oneshot.world import observation_state
-
     if given not in ("position", "colour"):
         raise ValueError(f"given must be 'position' or 'colour'; got {given!r}")
     ds = data.load(train_data)
-    world_cfg = world_config_of(ds["metadata"])
+    world_cfg = data.world_config(ds["metadata"])
     max_torque = world_cfg.arm.max_torque
     rgb = palette.palette_rgb(world_cfg.palette).astype(np.float32) / 255     # (colours, 3)
     images, states, actions = imitation.prepare_demos(ds["images"], ds["states"], ds["actions"], max_torque)
@@ -95,8 +154,11 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
         return np.concatenate([im, np.broadcast_to(colour[:, None, None, :], im.shape)], -1), st
 
     def loss(p, im, st, act):
-        r = network.forward(p, im, st) - act
-        return anp.sum(r * r) / len(act)                      # eq. (2) per frame
+        return imitation.imitation_loss(p, (im, st, act)) / len(act)     # eq. (2), per frame
+
+    def seen(im, st, scene):
+        """What the network sees in a trial's scene: the image and state, and the privileged input."""
+        return inputs(im, st, scene.target_position.astype(np.float32)[None], rgb[scene.target_colour][None])
 
     g, adam = grad(loss), optim.adam_init(params)
     colours = rgb[ds["task_colours"].astype(int)]
@@ -106,17 +168,8 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
                         np.repeat(target[ti, ki], T, 0), np.repeat(colours[ti], T, 0))
         params, adam = optim.adam_step(params, g(params, im, st, actions[ti, ki].reshape(-1, 2)), adam, lr)
     world = ReachWorld(dataclasses.replace(world_cfg, split="heldout"))
-    wins = 0
-    for j in tqdm(range(trials), desc="held-out trials"):
-        obs, info = world.reset(seed=EVAL_SEED_OFFSET + j)
-        tgt, colour = info["target_position"].astype(np.float32)[None], rgb[info["scene"].target_colour][None]
-        ee = []
-        for _ in range(T):
-            st = (observation_state(obs) / imitation.STATE_SCALE)[None].astype(np.float32)
-            im, st = inputs(network.images_to_float(obs["image"])[None], st, tgt, colour)
-            obs, _, _, _, info = world.step(np.asarray(network.forward(params, im, st))[0].astype(float) * max_torque)
-            ee.append(obs["end_effector"])
-        wins += is_success(ee, info["target_position"], world_cfg.success_radius)
+    wins = sum(imitation.rollout(params, world, imitation.trial_seed(0, 0, j), inputs=seen)["success"]
+               for j in tqdm(range(trials), desc="held-out trials"))
     return {"given": given, "feature_points": feature_points, "steps": steps, "batch_demos": batch,
             "seed": seed, "heldout_trials": trials, "heldout_success": wins / trials,
             "ci95": wilson_interval(wins, trials)}
@@ -129,30 +182,25 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **ove
 
     The part is computed `iterations` times as it is (median wall time) and, alternately with those,
     `iterations` times under Python's cProfile, which gives the time spent inside each of the network's
-    primitives (`oneshot.network`, `oneshot.maml`; medians): the matrix products, im2col/col2im and the
+    primitives (`oneshot.layers`, `oneshot.batched`; medians): the matrix products, im2col/col2im and the
     rest of the layer primitives (bias, ReLU, masks, concatenation, eq. (1)). The remainder of the wall
     time is autograd's own Python bookkeeping, its sums of gradients and NumPy's small operations (the
     loss, reshapes). Returns milliseconds per part.
     """
-    import cProfile
-    import pstats
-
-    from oneshot import maml, network, shards, train
-
-    train._tune_malloc()
-    shards.blas_threads(1)
-    cfg, net_cfg, params, rng = train.bench_setup(profile, image_size, **overrides)
-    batch = [train.synthetic_demos(rng, cfg.meta_batch, T, image_size) for _ in range(2)]
+    host.tune_malloc()
+    host.blas_threads(1)
+    cfg, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
+    batch = [synthetic_demos(rng, cfg.meta_batch, T, image_size) for _ in range(2)]
     adapt, evaluate = (shards.split_frames(demos, cfg.shards)[-1] for demos in batch)  # the training process's part
     B, frames = adapt[0].shape[:2]
-    settings = (cfg.alpha, cfg.inner_steps, cfg.first_order, train.inner_only(cfg))
+    settings = (cfg.alpha, cfg.inner_steps, cfg.first_order, inner_only(cfg))
 
     def compute():
         return shards.part(params, adapt, evaluate, settings)
 
     groups = {"matrix_products": ("matmul", "matmul_dx", "matmul_dw"), "im2col_col2im": ("im2col", "col2im")}
     keys = {}                                             # cProfile's key of each primitive -> its group
-    for module in (network, maml):
+    for module in (layers, batched):
         for name, f in vars(module).items():
             if getattr(f, "_is_autograd_primitive", False):
                 code = f.fun.__code__
@@ -176,7 +224,7 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **ove
         parts.append(part)
     ms = {k: float(np.median([p[k] for p in parts])) for k in parts[0]}
     wall = 1e3 * float(np.median(times))
-    flops = train.meta_gradient_flops(cfg, net_cfg, frames, B)
+    flops = meta_gradient_flops(cfg, net_cfg, frames, B)
     result = {"profile": profile, "tasks": int(B), "frames": int(frames), "inner_steps": cfg.inner_steps,
               "inner_params": cfg.inner_params, "first_order": cfg.first_order, "part_ms": round(wall, 1)}
     result.update({k + "_ms": round(v, 1) for k, v in ms.items()})
@@ -203,7 +251,7 @@ def machine():
     """What the figures were measured on: CPU model, cores, NumPy and its BLAS, and the widest SIMD
     extensions NumPy found. Float32 results differ in the last bits between CPUs whose BLAS and NumPy
     pick different kernels (e.g. with or without AVX-512), and training amplifies such differences
-    (docs/training.md)."""
+    (docs/results.md)."""
     cpu = "unknown"
     try:
         with open("/proc/cpuinfo") as f:
@@ -227,7 +275,6 @@ def peak_memory_mb():
 
 
 def main(argv=None):
-    from oneshot.train import INNER_PARAMS, bench_meta_iteration
     p = argparse.ArgumentParser(prog="python -m oneshot.benchmark", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="what", required=True)
@@ -238,7 +285,7 @@ def main(argv=None):
     c.add_argument("--workers", type=int, default=None)
     m = sub.add_parser("maml", help="seconds per second-order meta-iteration")
     m.add_argument("--iterations", type=int, default=20)
-    m.add_argument("--profile", default="default")
+    m.add_argument("--profile", choices=sorted(PROFILES), default="default")
     m.add_argument("--first-order", action="store_true", help="time the first-order approximation")
     m.add_argument("--inner-steps", type=int, default=None, help="override the profile's inner steps")
     m.add_argument("--inner-params", choices=sorted(INNER_PARAMS), default=None,

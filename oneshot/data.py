@@ -25,6 +25,10 @@ import zipfile
 
 import numpy as np
 
+from oneshot.arm import ArmConfig
+from oneshot.palette import PaletteConfig
+from oneshot.world import WorldConfig
+
 FORMAT_VERSION = 1
 
 # key: (dtype, number of dimensions)
@@ -148,3 +152,13 @@ def load(path):
 def demo(dataset, task, k):
     """The k-th demo of a task: (images (T, H, W, 3) uint8, states (T, 6), actions (T, 2))."""
     return dataset["images"][task, k], dataset["states"][task, k], dataset["actions"][task, k]
+
+
+def world_config(metadata):
+    """The WorldConfig a dataset was recorded in, rebuilt from its metadata (arm and palette too)."""
+    def tuples(d):
+        return {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+    world = tuples(metadata["world"])
+    world["arm"] = ArmConfig(**tuples(metadata["world"]["arm"]))
+    world["palette"] = PaletteConfig(**metadata["world"]["palette"])
+    return WorldConfig(**world)

@@ -3,20 +3,20 @@
 One-shot visual imitation, end to end (paper Sections III-IV):
   1. for every held-out colour (never seen in meta-training) the iLQG expert records ONE demonstration;
   2. the meta-trained policy adapts to that demo by gradient descent (eq. 1; the default profile takes
-     one step on its first convolution layer, docs/training.md);
+     one step on its first convolution layer, docs/results.md);
   3. the adapted policy acts in new scenes of that colour (new positions, new distractors).
 Prints the one-shot success rate (with a 95% interval) and the unadapted policy's for contrast, and
 writes pictures to DIR: the demo and the adapted policy side by side (PNG), and one trial (GIF).
 
 The policy is the pre-trained checkpoint shipped in `oneshot/pretrained/` (the default profile's
-run in docs/training.md; reproduce it with `python -m oneshot.train --profile default`, seed 0), or
+run in docs/results.md; reproduce it with `python -m oneshot.train --profile default`, seed 0), or
 any checkpoint you pass.
 """
 import argparse
 import os
 
-
-from oneshot import expert, imitation, palette, viz
+from oneshot import checkpoint, expert, imitation, palette, viz
+from oneshot.config import inner_only
 from oneshot.evaluate import wilson_interval
 from oneshot.world import ReachWorld, WorldConfig
 
@@ -31,9 +31,7 @@ def main(argv=None):
     p.add_argument("--trials", type=int, default=3, help="new scenes per held-out colour (default 3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the demos and trial scenes")
     args = p.parse_args(argv)
-    from oneshot.train import inner_only, load_checkpoint, policy_params
-
-    ckpt = load_checkpoint(args.checkpoint) if os.path.exists(args.checkpoint) else None
+    ckpt = checkpoint.load(args.checkpoint) if os.path.exists(args.checkpoint) else None
     # Demos like the ones the policy was meta-trained on (with the same DART noise, if any).
     expert_cfg = expert.ExpertConfig(action_noise=ckpt["config"].demo_noise if ckpt else 0.0)
 
@@ -55,7 +53,7 @@ def main(argv=None):
         viz.save_atomically(viz.filmstrip([d["images"] for d in list(demos.values())[:4]]),
                             os.path.join(args.out, "expert_demos.png"))
         return None
-    params, cfg = policy_params(ckpt), ckpt["config"]
+    params, cfg = checkpoint.policy_params(ckpt), ckpt["config"]
     max_torque = world.config.arm.max_torque
 
     # 2-3. Adapt on the one demo, act in new scenes; the unadapted policy for contrast.
@@ -69,7 +67,7 @@ def main(argv=None):
         demo = imitation.prepare_demos(d["images"], d["states"], d["actions"], max_torque)
         adapted = imitation.adapt(params, demo, cfg.alpha, cfg.inner_steps, inner_only(cfg))
         for j in range(args.trials):
-            seed = 10_000_019 + args.seed * 1000 + 10 * i + j
+            seed = imitation.trial_seed(args.seed, i, j)       # trial scenes, seeded as in `oneshot.evaluate`
             r = imitation.rollout(adapted, world, seed, colour)
             wins += r["success"]
             base_wins += imitation.rollout(params, world, seed, colour)["success"]

@@ -11,14 +11,8 @@ import json
 import math
 import sys
 
-from tqdm import tqdm
-
-from oneshot import data, imitation, maml
-from oneshot.arm import ArmConfig
-from oneshot.palette import PaletteConfig
-from oneshot.world import ReachWorld, WorldConfig, closest_object
-
-EVAL_SEED_OFFSET = 1_000_003   # trial scenes never reuse a dataset's scene seeds
+from oneshot import checkpoint, data, imitation, maml
+from oneshot.config import inner_only
 
 
 def wilson_interval(successes, trials, z=1.96):
@@ -31,59 +25,10 @@ def wilson_interval(successes, trials, z=1.96):
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
-def world_config_of(metadata):
-    """The WorldConfig a dataset was recorded in, rebuilt from its metadata (arm and palette too)."""
-    def tuples(d):
-        return {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
-    world = tuples(metadata["world"])
-    world["arm"] = ArmConfig(**tuples(metadata["world"]["arm"]))
-    world["palette"] = PaletteConfig(**metadata["world"]["palette"])
-    return WorldConfig(**world)
-
-
-def one_shot_success(params, dataset, trials_per_colour=10, alpha=0.001, steps=3, seed=0,
-                     adapt=True, progress=True, only=None):
-    """Success over `trials_per_colour` trials for each task (colour) of `dataset`.
-
-    Trial j of task i adapts on demo j % K of that task and acts in a fresh scene (seeded apart from
-    every dataset seed). adapt=False runs the unadapted policy (a check that adaptation matters).
-    Returns {"successes", "trials", "rate", "ci95": (lo, hi), "per_colour": {colour: rate},
-    "failures": {"near_miss": n, "wrong_object": m}}: a failed trial is a near miss when the end
-    effector's closest object over the final fifth was the target, else it went to a distractor.
-    """
-    meta = dataset["metadata"]
-    world_cfg = world_config_of(meta)
-    world = ReachWorld(world_cfg)
-    n, k = dataset["images"].shape[:2]
-    k = min(k, trials_per_colour)                     # only these demos are used: convert just them
-    demos = imitation.prepare_demos(dataset["images"][:, :k], dataset["states"][:, :k],
-                                    dataset["actions"][:, :k], world_cfg.arm.max_torque)
-    wins, per_colour, failures = 0, {}, {"near_miss": 0, "wrong_object": 0}
-    bar = tqdm(total=n * trials_per_colour, desc=f"one-shot trials ({meta['split']})", disable=not progress)
-    for i in range(n):
-        colour, won = int(dataset["task_colours"][i]), 0
-        for j in range(trials_per_colour):
-            demo = tuple(a[i, j % k] for a in demos)
-            policy = imitation.adapt(params, demo, alpha, steps, only) if adapt else params
-            trial_seed = EVAL_SEED_OFFSET + seed * 100_000 + i * 1000 + j
-            trial = imitation.rollout(policy, world, trial_seed, colour)
-            won += trial["success"]
-            if not trial["success"]:
-                closest, _ = closest_object(trial["end_effector"], trial["scene"].positions)
-                failures["near_miss" if closest == trial["scene"].target else "wrong_object"] += 1
-            bar.update()
-        per_colour[colour] = won / trials_per_colour
-        wins += won
-    bar.close()
-    trials = n * trials_per_colour
-    return {"successes": wins, "trials": trials, "rate": wins / trials,
-            "ci95": wilson_interval(wins, trials), "per_colour": per_colour, "failures": failures}
-
-
 def colour_breakdown(result, trials_per_colour, metadata):
     """One line of per-colour successes, e.g. "0 deg 10/10, 30 deg 8/10, ...", in hue order: which
     new colours are hard (on our palette, the hues half-way between the primaries and secondaries;
-    docs/training.md, "Which colours fail")."""
+    docs/results.md, "Which colours fail")."""
     size = metadata["world"]["palette"]["size"]
     return ", ".join(f"{360 * c / size:g} deg {round(rate * trials_per_colour)}/{trials_per_colour}"
                      for c, rate in sorted(result["per_colour"].items()))
@@ -100,7 +45,7 @@ def adaptation_gain(params, dataset, alpha=0.001, steps=3, pairs=5, only=None):
     pairs = min(pairs, k - 1)
     if pairs < 1:
         raise ValueError(f"adaptation_gain needs >= 2 demos per task; the dataset has {k}")
-    world_cfg = world_config_of(dataset["metadata"])
+    world_cfg = data.world_config(dataset["metadata"])
     demos = imitation.prepare_demos(dataset["images"][:, :pairs + 1], dataset["states"][:, :pairs + 1],
                                     dataset["actions"][:, :pairs + 1], world_cfg.arm.max_torque)
     before, after = [], []
@@ -113,7 +58,6 @@ def adaptation_gain(params, dataset, alpha=0.001, steps=3, pairs=5, only=None):
 
 
 def main(argv=None):
-    from oneshot.train import inner_only, load_checkpoint, policy_params
     p = argparse.ArgumentParser(prog="python -m oneshot.evaluate", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoint", help="a checkpoint written by `python -m oneshot.train`")
@@ -132,12 +76,12 @@ def main(argv=None):
                    help="meta-test with this many inner steps instead of the trained number")
     p.add_argument("--json", default=None, help="also write the results to this JSON file")
     args = p.parse_args(argv)
-    ckpt = load_checkpoint(args.checkpoint)
-    params, cfg = policy_params(ckpt, args.raw), ckpt["config"]
+    ckpt = checkpoint.load(args.checkpoint)
+    params, cfg = checkpoint.policy_params(ckpt, args.raw), ckpt["config"]
     cfg = dataclasses.replace(cfg, **{k: v for k, v in (("alpha", args.alpha), ("inner_steps", args.inner_steps))
                                       if v is not None})
     try:
-        maml._check_step(cfg.alpha, cfg.inner_steps, None)
+        maml.check_step(cfg.alpha, cfg.inner_steps)
     except ValueError as e:
         p.error(f"{e} (--alpha >= 0, --inner-steps >= 0)")
     only = inner_only(cfg)
@@ -146,8 +90,8 @@ def main(argv=None):
         if not path:
             continue
         dataset = data.load(path)
-        r = one_shot_success(params, dataset, args.trials, cfg.alpha, cfg.inner_steps, args.seed, only=only)
-        lo, hi = r["ci95"]
+        r = imitation.one_shot_success(params, dataset, args.trials, cfg.alpha, cfg.inner_steps, args.seed, only=only)
+        r["ci95"] = lo, hi = wilson_interval(r["successes"], r["trials"])
         print(f"{name} colours: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
               f"95% CI [{lo:.3f}, {hi:.3f}]; failures: {r['failures']['near_miss']} near misses (closest "
               f"to the target, but not within reach), {r['failures']['wrong_object']} at a distractor")
@@ -159,8 +103,9 @@ def main(argv=None):
                   f"one demo, {g['after']:.3f} after ({g['pairs']} pairs)")
             results["adaptation_gain"] = g
         if args.unadapted and name == "heldout":
-            u = one_shot_success(params, dataset, args.trials, cfg.alpha, cfg.inner_steps, args.seed, adapt=False)
-            lo, hi = u["ci95"]
+            u = imitation.one_shot_success(params, dataset, args.trials, cfg.alpha, cfg.inner_steps, args.seed,
+                                           adapt_first=False)
+            u["ci95"] = lo, hi = wilson_interval(u["successes"], u["trials"])
             print(f"heldout colours, unadapted policy: success {u['rate']:.3f} ({u['successes']}/{u['trials']}), "
                   f"95% CI [{lo:.3f}, {hi:.3f}]")
             results["heldout_unadapted"] = u

@@ -8,12 +8,16 @@ run the adapted policy in the world, in a new scene (new positions) with the sam
 Units: the network sees images in [0, 1], states divided by STATE_SCALE and predicts torques divided
 by the torque bound, so every input and output is of order one.
 """
+import functools
+
 import autograd.numpy as anp
 import numpy as np
+from tqdm import tqdm
 
 from oneshot import maml
+from oneshot.data import world_config
 from oneshot.network import forward, images_to_float
-from oneshot.world import is_success, observation_state
+from oneshot.world import ReachWorld, closest_object, is_success, observation_state
 
 # joint angles (rad), joint velocities (rad/s), end effector (m) -> order one
 STATE_SCALE = np.array([np.pi, np.pi, 10.0, 10.0, 0.2, 0.2], np.float32)
@@ -64,23 +68,31 @@ def adapt(params, demo, alpha=0.001, steps=3, only=None):
     return maml.inner_update(params, demo, imitation_loss, alpha, steps, only=only)
 
 
-def act(params, obs, max_torque):
-    """The policy's torques (2,) N m for one observation of the world."""
+def act(params, obs, max_torque, inputs=None):
+    """The policy's torques (2,) N m for one observation of the world. inputs: None, or a function
+    (image (1, H, W, 3), state (1, 6)) -> (image, state) that changes what the network sees."""
     image = images_to_float(obs["image"])[None]
     state = (observation_state(obs) / STATE_SCALE)[None]
+    if inputs is not None:
+        image, state = inputs(image, state)
     return np.asarray(forward(params, image, state))[0].astype(np.float64) * max_torque
 
 
-def rollout(params, world, seed, target_colour):
-    """Run the policy for one episode in a new scene of `target_colour`.
+def rollout(params, world, seed, target_colour=None, inputs=None):
+    """Run the policy for one episode in a new scene of `target_colour` (None: a random colour of the
+    world's split, drawn from `seed`). inputs: None, or inputs(image, state, scene) -> (image, state),
+    which changes what the network sees in that scene (`benchmark privileged` appends the target's
+    position or colour).
 
     Returns {"success": bool, "images": (T, H, W, 3) uint8, "end_effector": (T, 2), "scene": Scene}.
     """
-    obs, info = world.reset(seed=seed, options={"target_colour": int(target_colour)})
+    options = {} if target_colour is None else {"target_colour": int(target_colour)}
+    obs, info = world.reset(seed=seed, options=options)
+    seen = None if inputs is None else functools.partial(inputs, scene=info["scene"])
     images, ee = [], []
     for _ in range(world.config.horizon):
         images.append(obs["image"])
-        obs, _, _, _, info = world.step(act(params, obs, world.config.arm.max_torque))
+        obs, _, _, _, info = world.step(act(params, obs, world.config.arm.max_torque, seen))
         ee.append(obs["end_effector"])
     return {"success": is_success(ee, info["target_position"], world.config.success_radius),
             "images": np.stack(images), "end_effector": np.stack(ee), "scene": info["scene"]}
@@ -89,3 +101,53 @@ def rollout(params, world, seed, target_colour):
 def one_shot_trial(params, demo, world, seed, target_colour, alpha=0.001, steps=3, only=None):
     """Meta-test (Section III-B): adapt on ONE demo (network units), then act in a new scene."""
     return rollout(adapt(params, demo, alpha, steps, only), world, seed, target_colour)
+
+
+TRIAL_SEED_OFFSET = 1_000_003   # trial scenes never reuse a dataset's scene seeds (those are 63-bit hashes)
+
+
+def trial_seed(seed, task, trial):
+    """The scene seed of trial `trial` of task `task` at meta-test: the one function that makes them
+    (evaluate, demo, training's held-out checks). Distinct for task < 100 and trial < 1000."""
+    if not (0 <= task < 100 and 0 <= trial < 1000 and seed >= 0):
+        raise ValueError(f"trial seeds are distinct for 0 <= task < 100, 0 <= trial < 1000 and seed >= 0; "
+                         f"got seed={seed}, task={task}, trial={trial}")
+    return TRIAL_SEED_OFFSET + seed * 100_000 + task * 1000 + trial
+
+
+def one_shot_success(params, dataset, trials_per_colour=10, alpha=0.001, steps=3, seed=0,
+                     adapt_first=True, progress=True, only=None):
+    """Meta-test over a dataset (Section III-B, scored as in Section IV): for each task (colour) of
+    `dataset`, `trials_per_colour` trials, trial j adapting on demo j % K of that task and acting in a
+    fresh scene (`trial_seed`). adapt_first=False runs the unadapted policy (does adapting matter?).
+
+    Returns {"successes", "trials", "rate", "per_colour": {colour: rate}, "failures": {"near_miss": n,
+    "wrong_object": m}}: a failed trial is a near miss when the end effector's closest object over the
+    final fifth was the target, else it went to a distractor.
+    """
+    meta = dataset["metadata"]
+    world_cfg = world_config(meta)
+    world = ReachWorld(world_cfg)
+    n, k = dataset["images"].shape[:2]
+    k = min(k, trials_per_colour)                     # only these demos are used: convert just them
+    demos = prepare_demos(dataset["images"][:, :k], dataset["states"][:, :k], dataset["actions"][:, :k],
+                          world_cfg.arm.max_torque)
+    wins, per_colour, failures = 0, {}, {"near_miss": 0, "wrong_object": 0}
+    bar = tqdm(total=n * trials_per_colour, desc=f"one-shot trials ({meta['split']})", disable=not progress)
+    for i in range(n):
+        colour, won = int(dataset["task_colours"][i]), 0
+        for j in range(trials_per_colour):
+            demo = tuple(a[i, j % k] for a in demos)
+            policy = adapt(params, demo, alpha, steps, only) if adapt_first else params
+            trial = rollout(policy, world, trial_seed(seed, i, j), colour)
+            won += trial["success"]
+            if not trial["success"]:
+                closest, _ = closest_object(trial["end_effector"], trial["scene"].positions)
+                failures["near_miss" if closest == trial["scene"].target else "wrong_object"] += 1
+            bar.update()
+        per_colour[colour] = won / trials_per_colour
+        wins += won
+    bar.close()
+    trials = n * trials_per_colour
+    return {"successes": wins, "trials": trials, "rate": wins / trials, "per_colour": per_colour,
+            "failures": failures}

@@ -19,10 +19,8 @@ the same order. The worker processes are forked once and then read their paramet
 shared memory each iteration (nothing is pickled). Results depend on `shards`, never on the number of
 cores: `shards` processes run even on one core. Against splitting the tasks 3 + 2 and pickling the
 worker's share, a meta-iteration of the default profile is 13-15% faster, the paper's inner loop 6%
-(docs/network.md, "Frame shards").
+(docs/results.md, "Speed").
 """
-import ctypes
-import glob
 import mmap
 import multiprocessing
 import os
@@ -33,7 +31,8 @@ import traceback
 import numpy as np
 from autograd.extend import defvjp, primitive
 
-from oneshot import imitation, maml
+from oneshot import batched, imitation
+from oneshot.host import blas_threads
 
 TIMEOUT = 600.0   # seconds a process waits for the others at one exchange before giving up
 
@@ -138,11 +137,11 @@ def part(params, adapt, evaluate, settings, exchange=None):
     """This process's part: (value, grads) of its frames' share of the meta-objective, summed over the
     processes of `exchange` when there is one (then every process returns the whole meta-gradient).
 
-    settings: (alpha, inner_steps, first_order, only) as in `maml.meta_gradient_batched`.
+    settings: (alpha, inner_steps, first_order, only) as in `batched.meta_gradient_batched`.
     """
     if exchange is None:
-        return maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, *settings)
-    value, grads = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, *settings,
+        return batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, *settings)
+    value, grads = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, *settings,
                                               reduce=lambda g: allreduce(g, exchange))
     flat = [grads[k].ravel() for k in params]
     flat = exchange.sum(np.concatenate(flat + [np.ravel(value).astype(flat[0].dtype)]))   # (n_params + 1,)
@@ -270,43 +269,25 @@ def _serve(exchange, rank, params, adapt, evaluate, conn):
             return
 
 
-def make_pool(cfg):
-    """A `Pool` for cfg.shards processes, or None when cfg.shards == 1 (one process does everything)."""
-    if isinstance(cfg.shards, bool) or not isinstance(cfg.shards, int) or cfg.shards < 1:
+def make_pool(shards):
+    """A `Pool` for `shards` processes, or None when shards == 1 (one process does everything)."""
+    if isinstance(shards, bool) or not isinstance(shards, int) or shards < 1:
         raise ValueError(f"shards is the number of processes sharing each meta-gradient, an int >= 1; "
-                         f"got {cfg.shards!r}")
-    return Pool(cfg.shards) if cfg.shards > 1 else None
+                         f"got {shards!r}")
+    return Pool(shards) if shards > 1 else None
 
 
-def meta_gradient(params, adapt, evaluate, cfg, pool=None):
-    """The meta-objective (mean over tasks) and its gradient, each of cfg.shards processes on its block
+def meta_gradient(params, adapt, evaluate, settings, shards=1, pool=None):
+    """The meta-objective (mean over tasks) and its gradient, each of `shards` processes on its block
     of frames.
 
     params: dict of arrays. adapt, evaluate: batched demos (tuples of (B, T, ...) arrays).
-    cfg: a `train.TrainConfig` (alpha, inner_steps, first_order, inner_params, shards).
-    pool: `make_pool(cfg)`, needed when cfg.shards > 1.
-    Returns (value, grads) as `maml.meta_gradient_batched`; the numbers depend on cfg.shards only.
+    settings: (alpha, inner_steps, first_order, only) as in `batched.meta_gradient_batched`.
+    pool: `make_pool(shards)`, needed when shards > 1.
+    Returns (value, grads) as `batched.meta_gradient_batched`; the numbers depend on `shards` only.
     """
-    from oneshot.train import inner_only
-    settings = (cfg.alpha, cfg.inner_steps, cfg.first_order, inner_only(cfg))
-    if cfg.shards == 1:
+    if shards == 1:
         return part(params, adapt, evaluate, settings)
-    if pool is None or pool.shards != cfg.shards:
-        raise ValueError(f"cfg.shards = {cfg.shards} needs a pool of as many processes: shards.make_pool(cfg)")
+    if pool is None or pool.shards != shards:
+        raise ValueError(f"shards = {shards} needs a pool of as many processes: shards.make_pool({shards})")
     return pool.meta_gradient(params, adapt, evaluate, settings)
-
-
-def blas_threads(n):
-    """Set OpenBLAS's thread count in this process, where NumPy's bundled OpenBLAS allows it."""
-    folder = os.path.join(os.path.dirname(np.__file__), os.pardir, "numpy.libs")
-    for path in glob.glob(os.path.join(folder, "*openblas*")):
-        try:
-            lib = ctypes.CDLL(path)
-            for name in ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
-                         "openblas_set_num_threads"):
-                if hasattr(lib, name):
-                    getattr(lib, name)(n)
-                    return True
-        except OSError:
-            pass
-    return False

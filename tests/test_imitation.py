@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from autograd import grad
 
-from oneshot import imitation, maml, network
+from oneshot import batched, imitation, maml, network
 
 CFG = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5, 5))
 
@@ -29,7 +29,7 @@ def test_batched_meta_objective_equals_the_per_task_loop(rng):
     tasks = [(tuple(a[b] for a in adapt), tuple(e[b] for e in evaluate)) for b in range(3)]
     for first_order in (False, True):
         v1, g1 = maml.meta_gradient(params, tasks, imitation.imitation_loss, 0.01, 2, first_order)
-        v2, g2 = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.01, 2, first_order)
+        v2, g2 = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.01, 2, first_order)
         assert v2 == pytest.approx(v1, rel=1e-10)
         for k in params:
             np.testing.assert_allclose(g2[k], g1[k], rtol=1e-8, atol=1e-12)
@@ -44,7 +44,7 @@ def test_adapting_only_the_convolutions_leaves_the_rest_and_matches_the_loop(rng
     # batched (non-adapted parameters shared across tasks) == per-task loop, value and gradient
     tasks = [(tuple(a[b] for a in adapt), tuple(e[b] for e in evaluate)) for b in range(3)]
     v1, g1 = maml.meta_gradient(params, tasks, imitation.imitation_loss, 0.05, 2, only=("conv",))
-    v2, g2 = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.05, 2, only=("conv",))
+    v2, g2 = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.05, 2, only=("conv",))
     assert v2 == pytest.approx(v1, rel=1e-10)
     for k in params:
         np.testing.assert_allclose(g2[k], g1[k], rtol=1e-8, atol=1e-12)
@@ -61,10 +61,10 @@ def test_second_order_meta_gradient_matches_finite_differences(rng):
     alpha, steps = 0.05, 3          # a large step so second-order terms matter
 
     def f(p):
-        return maml.meta_objective_batched(p, adapt, evaluate, imitation.imitation_loss, alpha, steps)
+        return batched.meta_objective_batched(p, adapt, evaluate, imitation.imitation_loss, alpha, steps)
 
-    _, g = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, alpha, steps)
-    _, g_first = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, alpha, steps, True)
+    _, g = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, alpha, steps)
+    _, g_first = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, alpha, steps, True)
     eps = 1e-5
     for _ in range(3):
         d = {k: rng.normal(size=v.shape) for k, v in params.items()}
@@ -78,7 +78,7 @@ def test_second_order_meta_gradient_matches_finite_differences(rng):
 def test_first_order_meta_gradient_is_the_plain_gradient_at_the_adapted_parameters(rng):
     params = network.init_params(CFG, rng, dtype=np.float64)
     adapt, evaluate = _demos(rng, B=2), _demos(rng, B=2)
-    _, g = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.05, 3, True)
+    _, g = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.05, 3, True)
     expected = {k: 0.0 for k in params}
     for b in range(2):
         p = params
@@ -107,7 +107,7 @@ def test_adaptation_lowers_the_loss_and_alpha_zero_changes_nothing(rng):
 def test_batched_meta_gradient_keeps_float32(rng):
     params = network.init_params(CFG, rng)
     adapt, evaluate = _demos(rng, B=2, dtype=np.float32), _demos(rng, B=2, dtype=np.float32)
-    value, g = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.001, 3)
+    value, g = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.001, 3)
     assert np.asarray(value).dtype == np.float32
     assert all(v.dtype == np.float32 for v in g.values())
 
@@ -140,7 +140,7 @@ def test_learnt_step_sizes_batched_equals_the_per_task_loop(rng):
     adapt, evaluate = _demos(rng, B=3), _demos(rng, B=3)
     tasks = [(tuple(a[b] for a in adapt), tuple(e[b] for e in evaluate)) for b in range(3)]
     v1, g1 = maml.meta_gradient(params, tasks, imitation.imitation_loss, 0.0, 1, only=("conv0_",))
-    v2, g2 = maml.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.0, 1, only=("conv0_",))
+    v2, g2 = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.0, 1, only=("conv0_",))
     assert v2 == pytest.approx(v1, rel=1e-10)
     assert g2.keys() == params.keys() and np.abs(g2[maml.STEP_PREFIX + "conv0_w"]).max() > 0
     for k in params:

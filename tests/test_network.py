@@ -12,28 +12,10 @@ from autograd import grad
 from autograd.core import primitive_vjps
 from autograd.test_util import check_grads
 
-from oneshot.network import (
-    NetworkConfig,
-    _col2im_3x3_stride2,
-    _col2im_any,
-    add_bias,
-    bias_grad,
-    broadcast_bias,
-    col2im,
-    concat_last,
-    conv2d,
-    count_flops,
-    images_to_float,
-    init_params,
-    im2col,
-    matmul,
-    matmul_dw,
-    matmul_dx,
-    param_shapes,
-    predict,
-    predict_tasks,
-    relu,
-)
+from oneshot.layers import (_col2im_3x3_stride2, _col2im_any, add_bias, bias_grad, broadcast_bias, col2im,
+                            concat_last, conv2d, im2col, matmul, matmul_dw, matmul_dx, relu, spatial_soft_argmax)
+from oneshot.network import (NetworkConfig, count_flops, forward, forward_reference, images_to_float, init_params,
+                             param_shapes, predict, predict_tasks)
 
 TINY = NetworkConfig(image_size=8, channels=(2, 3), hidden=(5, 4), state_dim=3, action_dim=2)
 
@@ -339,17 +321,16 @@ def test_count_flops_by_hand():
 
 
 def test_feature_points_second_order_gradients_and_positions():
-    from oneshot import network
     """The spatial soft-argmax option: exact second-order gradients, and a lone hot spot's
     expected position is that spot's coordinates (x right, y down, in [-1, 1])."""
-    cfg = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,), feature_points=True, bias_transform=2)
+    cfg = NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,), feature_points=True, bias_transform=2)
     rng = np.random.default_rng(0)
-    params = network.init_params(cfg, rng, dtype=np.float64)
+    params = init_params(cfg, rng, dtype=np.float64)
     assert params["fp_temperature"].shape == (1,)
     images, states = rng.random((2, 8, 8, 3)), rng.normal(size=(2, 6))
-    check_grads(lambda p: network.predict(p, images, states), modes=["rev"], order=2)(params)
+    check_grads(lambda p: predict(p, images, states), modes=["rev"], order=2)(params)
     x = np.zeros((1, 5, 5, 2))
     x[0, 1, 3, 0] = 50.0                    # channel 0: a spike at row 1, column 3
-    points = network.spatial_soft_argmax(x, np.ones(1))
+    points = spatial_soft_argmax(x, np.ones(1))
     np.testing.assert_allclose(points[0, [0, 2]], [0.5, -0.5], atol=1e-6)   # (x, y) of channel 0
     np.testing.assert_allclose(points[0, [1, 3]], [0.0, 0.0], atol=1e-12)   # flat channel 1: the centre

@@ -148,10 +148,10 @@ def test_one_shot_imitation(tmp_path, monkeypatch):
     assert isinstance(ns["trial"]["success"], bool) and ns["trial"]["images"].shape == (20, 32, 32, 3)
     # The pre-trained branch, on a stand-in checkpoint (the notebook's own few-iteration policy), so it
     # is exercised before a real one ships in oneshot/pretrained/.
-    from oneshot import demo, network, optim, train
+    from oneshot import checkpoint, config, demo, network, optim
     path = tmp_path / "stand_in.npz"
-    train.save_checkpoint(path, ns["params"], optim.adam_init(ns["params"]), 8, np.random.default_rng(0),
-                          train.TrainConfig(), network.NetworkConfig())
+    checkpoint.save(path, ns["params"], optim.adam_init(ns["params"]), 8, np.random.default_rng(0),
+                          config.TrainConfig(), network.NetworkConfig())
     monkeypatch.setattr(demo, "PRETRAINED", str(path))
     ns = run_cells("03 (pre-trained cell)", [c for c in cells if "pretrained" in c[1]], ns)
     assert ns["pretrained_loss_adapted"] < ns["pretrained_loss_before"]

@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 from autograd.test_util import check_grads
 
-from oneshot import maml, network, shards, train
+from oneshot import batched, config, network, shards
 
 
 def _setup(rng, dtype=np.float64, T=4, B=5, **overrides):
-    """A small network (float64: sums in another order then differ by ~1e-16) and a meta-batch."""
-    cfg = dataclasses.replace(train.PROFILES["default"], **overrides)
+    """A small network (float64: sums in another order then differ by ~1e-16), a meta-batch, and the
+    inner-loop settings of the default profile with `overrides`."""
+    cfg = dataclasses.replace(config.PROFILES["default"], **overrides)
     net_cfg = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,), bias_transform=2,
                                     feature_points=cfg.feature_points)
     params = network.init_params(net_cfg, rng, dtype)
@@ -20,7 +21,8 @@ def _setup(rng, dtype=np.float64, T=4, B=5, **overrides):
         return (rng.random((B, T, 8, 8, 3)).astype(dtype), rng.normal(size=(B, T, 6)).astype(dtype),
                 rng.normal(size=(B, T, 2)).astype(dtype))
 
-    return cfg, params, demos(), demos()
+    settings = (cfg.alpha, cfg.inner_steps, cfg.first_order, config.inner_only(cfg))
+    return settings, params, demos(), demos()
 
 
 @pytest.mark.parametrize("profile, shard_count", [
@@ -32,12 +34,11 @@ def _setup(rng, dtype=np.float64, T=4, B=5, **overrides):
 def test_frame_shards_give_the_meta_gradient_of_one_process(rng, profile, shard_count):
     """The second-order meta-gradient does not depend on how the frames are split between processes:
     eq. (1)'s inner gradient is summed across them (`allreduce`) and so is its VJP."""
-    cfg, params, adapt, evaluate = _setup(rng, **profile)
-    one = shards.meta_gradient(params, adapt, evaluate, dataclasses.replace(cfg, shards=1))
-    cfg = dataclasses.replace(cfg, shards=shard_count)
-    with shards.make_pool(cfg) as pool:
-        split = shards.meta_gradient(params, adapt, evaluate, cfg, pool)
-        again = shards.meta_gradient(params, adapt, evaluate, cfg, pool)
+    settings, params, adapt, evaluate = _setup(rng, **profile)
+    one = shards.meta_gradient(params, adapt, evaluate, settings)
+    with shards.make_pool(shard_count) as pool:
+        split = shards.meta_gradient(params, adapt, evaluate, settings, shard_count, pool)
+        again = shards.meta_gradient(params, adapt, evaluate, settings, shard_count, pool)
     assert split[0] == pytest.approx(float(one[0]), rel=1e-12)
     for k in params:
         np.testing.assert_allclose(split[1][k], one[1][k], rtol=1e-10, atol=1e-13, err_msg=k)
@@ -48,10 +49,10 @@ def test_frame_shards_give_the_meta_gradient_of_one_process(rng, profile, shard_
 
 
 def test_float32_frame_shards_are_close_to_one_process(rng):
-    cfg, params, adapt, evaluate = _setup(rng, np.float32, T=20)
-    one = shards.meta_gradient(params, adapt, evaluate, dataclasses.replace(cfg, shards=1))
-    with shards.make_pool(cfg) as pool:
-        split = shards.meta_gradient(params, adapt, evaluate, cfg, pool)
+    settings, params, adapt, evaluate = _setup(rng, np.float32, T=20)
+    one = shards.meta_gradient(params, adapt, evaluate, settings)
+    with shards.make_pool(2) as pool:
+        split = shards.meta_gradient(params, adapt, evaluate, settings, 2, pool)
     for k in params:          # float32 sums in another order: error relative to the array's largest entry
         scale = max(1.0, float(np.abs(one[1][k]).max()))
         np.testing.assert_allclose(split[1][k], one[1][k], rtol=1e-4, atol=1e-6 * scale)
@@ -73,8 +74,8 @@ def test_allreduce_is_its_own_vjp_to_second_order(rng):
 @pytest.mark.parametrize("how, message", [("raise", "(?s)shard process 0 failed.*boom in the worker"),
                                           ("exit", "shard process 0 died during a meta-gradient")])
 def test_a_failing_worker_is_reported_and_the_pool_recovers(rng, monkeypatch, how, message):
-    cfg, params, adapt, evaluate = _setup(rng)
-    real, here = maml.meta_gradient_batched, os.getpid()
+    settings, params, adapt, evaluate = _setup(rng)
+    real, here = batched.meta_gradient_batched, os.getpid()
 
     def fails_in_workers(*args, **kwargs):
         if os.getpid() != here:
@@ -83,36 +84,36 @@ def test_a_failing_worker_is_reported_and_the_pool_recovers(rng, monkeypatch, ho
             raise FloatingPointError("boom in the worker")
         return real(*args, **kwargs)
 
-    expected = shards.meta_gradient(params, adapt, evaluate, dataclasses.replace(cfg, shards=1))
-    with shards.make_pool(cfg) as pool:
-        monkeypatch.setattr(maml, "meta_gradient_batched", fails_in_workers)   # forked with the workers
+    expected = shards.meta_gradient(params, adapt, evaluate, settings)
+    with shards.make_pool(2) as pool:
+        monkeypatch.setattr(batched, "meta_gradient_batched", fails_in_workers)   # forked with the workers
         with pytest.raises(shards.ShardError, match=message):
-            shards.meta_gradient(params, adapt, evaluate, cfg, pool)
-        monkeypatch.setattr(maml, "meta_gradient_batched", real)
-        value, grads = shards.meta_gradient(params, adapt, evaluate, cfg, pool)   # new workers
+            shards.meta_gradient(params, adapt, evaluate, settings, 2, pool)
+        monkeypatch.setattr(batched, "meta_gradient_batched", real)
+        value, grads = shards.meta_gradient(params, adapt, evaluate, settings, 2, pool)   # new workers
     assert value == pytest.approx(float(expected[0]), rel=1e-12)
 
 
 def test_a_dead_worker_is_reported_instead_of_waited_for(rng):
-    cfg, params, adapt, evaluate = _setup(rng)
-    with shards.make_pool(cfg) as pool:
-        shards.meta_gradient(params, adapt, evaluate, cfg, pool)
+    settings, params, adapt, evaluate = _setup(rng)
+    with shards.make_pool(2) as pool:
+        shards.meta_gradient(params, adapt, evaluate, settings, 2, pool)
         pool.workers[0][0].kill()
         pool.workers[0][0].join()
         with pytest.raises(shards.ShardError, match="shard process 0 died"):
-            shards.meta_gradient(params, adapt, evaluate, cfg, pool)
-        value, _ = shards.meta_gradient(params, adapt, evaluate, cfg, pool)        # new workers
+            shards.meta_gradient(params, adapt, evaluate, settings, 2, pool)
+        value, _ = shards.meta_gradient(params, adapt, evaluate, settings, 2, pool)        # new workers
     assert np.isfinite(value)
 
 
 def test_bad_settings_name_the_fix(rng):
-    cfg, params, adapt, evaluate = _setup(rng, T=4)
+    settings, params, adapt, evaluate = _setup(rng, T=4)
     with pytest.raises(ValueError, match="needs a pool"):
-        shards.meta_gradient(params, adapt, evaluate, cfg)
+        shards.meta_gradient(params, adapt, evaluate, settings, 2)
     with pytest.raises(ValueError, match="cannot split demos of 4 frames into 5"):
         shards.split_frames(adapt, 5)
     with pytest.raises(ValueError, match="shards >= 2"):
         shards.Pool(1)
     with pytest.raises(ValueError, match="an int >= 1; got 0"):
-        shards.make_pool(dataclasses.replace(cfg, shards=0))
+        shards.make_pool(0)
     assert [d[0].shape[1] for d in shards.split_frames(adapt, 3)] == [1, 1, 2]

@@ -9,13 +9,13 @@ import sys
 import numpy as np
 import pytest
 
-from oneshot import data, evaluate, imitation, maml, network, optim, train
+from oneshot import batched, checkpoint, config, data, evaluate, imitation, maml, network, optim, train
 
 
 @pytest.fixture
 def tiny(tiny_datasets):
     train_path, heldout_path = tiny_datasets
-    return dataclasses.replace(train.PROFILES["tiny"], train_data=train_path, heldout_data=heldout_path)
+    return dataclasses.replace(config.PROFILES["tiny"], train_data=train_path, heldout_data=heldout_path)
 
 
 def _same(p, q):
@@ -24,7 +24,7 @@ def _same(p, q):
 
 def test_checkpoint_round_trip(tiny, tmp_path):
     params = train.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
-    ckpt = train.load_checkpoint(tmp_path / "run" / "checkpoint.npz")
+    ckpt = checkpoint.load(tmp_path / "run" / "checkpoint.npz")
     assert _same(ckpt["params"], params) and ckpt["iteration"] == 2
     assert ckpt["config"] == dataclasses.replace(tiny, iterations=2)
     assert all(v.dtype == np.float32 for v in ckpt["params"].values())
@@ -40,7 +40,7 @@ def test_resume_gives_the_parameters_of_an_uninterrupted_run(tiny, tmp_path, sha
     cfg = dataclasses.replace(tiny, iterations=8, checkpoint_every=3, shards=shards)
     whole = train.train(cfg, tmp_path / "whole", progress=False)
     train.train(cfg, tmp_path / "split", progress=False, stop_after=4)   # "killed" after iteration 4
-    ckpt = train.load_checkpoint(tmp_path / "split" / "checkpoint.npz")
+    ckpt = checkpoint.load(tmp_path / "split" / "checkpoint.npz")
     assert ckpt["iteration"] == 4
     resumed = train.train(cfg, tmp_path / "split", resume=True, progress=False)
     assert _same(resumed, whole)
@@ -54,7 +54,7 @@ def test_resume_gives_the_parameters_of_an_uninterrupted_run(tiny, tmp_path, sha
 
 def test_nan_stops_training_and_keeps_the_last_good_checkpoint(tiny, tmp_path, monkeypatch):
     cfg = dataclasses.replace(tiny, iterations=10, checkpoint_every=2)
-    real = maml.meta_gradient_batched
+    real = batched.meta_gradient_batched
     calls = {"n": 0}
 
     def poisoned(*args, **kwargs):
@@ -62,10 +62,10 @@ def test_nan_stops_training_and_keeps_the_last_good_checkpoint(tiny, tmp_path, m
         value, grads = real(*args, **kwargs)
         return (np.float32(np.nan), grads) if calls["n"] == 5 else (value, grads)
 
-    monkeypatch.setattr(train.maml, "meta_gradient_batched", poisoned)
+    monkeypatch.setattr(batched, "meta_gradient_batched", poisoned)
     with pytest.raises(train.TrainingDiverged, match=r"iteration 5.*iteration 4"):
         train.train(cfg, tmp_path / "run", progress=False)
-    assert train.load_checkpoint(tmp_path / "run" / "checkpoint.npz")["iteration"] == 4
+    assert checkpoint.load(tmp_path / "run" / "checkpoint.npz")["iteration"] == 4
 
 
 def test_a_short_seeded_run_lowers_the_meta_objective(tiny, tmp_path):
@@ -75,7 +75,7 @@ def test_a_short_seeded_run_lowers_the_meta_objective(tiny, tmp_path):
     batches = [imitation.sample_meta_batch(demos, np.random.default_rng(100 + i), 3) for i in range(4)]
 
     def objective(p):
-        return np.mean([maml.meta_objective_batched(p, a, e, imitation.imitation_loss, cfg.alpha, cfg.inner_steps)
+        return np.mean([batched.meta_objective_batched(p, a, e, imitation.imitation_loss, cfg.alpha, cfg.inner_steps)
                         for a, e in batches])
 
     first = train.train(dataclasses.replace(cfg, iterations=1), tmp_path / "one", progress=False)
@@ -91,7 +91,7 @@ def test_unknown_inner_params_is_refused_before_training(tiny, tmp_path):
 
 def test_inner_params_choose_which_parameters_adapt():
     net = network.init_params(network.NetworkConfig(bias_transform=4, feature_points=True), np.random.default_rng(0))
-    adapted = {name: maml.adapted_keys(net, train.inner_only(dataclasses.replace(train.TrainConfig(), inner_params=name)))
+    adapted = {name: maml.adapted_keys(net, config.inner_only(dataclasses.replace(config.TrainConfig(), inner_params=name)))
                for name in ("all", "conv", "conv0")}
     assert adapted["all"] == list(net)
     assert adapted["conv"] == ["conv0_w", "conv0_b", "conv1_w", "conv1_b", "conv2_w", "conv2_b"]
@@ -105,11 +105,11 @@ def test_learnt_step_sizes_are_meta_trained_checkpointed_and_used_at_meta_test(t
     assert sorted(steps) == [maml.STEP_PREFIX + "conv0_b", maml.STEP_PREFIX + "conv0_w"]
     assert all(v.shape == params[k[len(maml.STEP_PREFIX):]].shape for k, v in steps.items())
     assert all(not np.allclose(v, 0.1) for v in steps.values())              # Adam moved them
-    assert _same(train.load_checkpoint(tmp_path / "run" / "checkpoint.npz")["params"], params)
+    assert _same(checkpoint.load(tmp_path / "run" / "checkpoint.npz")["params"], params)
     # meta-test adapts with the learnt sizes, not with alpha: zero sizes leave the policy as it is
     demo = imitation.prepare_demos(*(data.load(cfg.heldout_data)[k][0, 0] for k in ("images", "states", "actions")), 0.5)
     frozen = {**params, **{k: np.zeros_like(v) for k, v in steps.items()}}
-    adapted = imitation.adapt(frozen, demo, cfg.alpha, 1, only=train.inner_only(cfg))
+    adapted = imitation.adapt(frozen, demo, cfg.alpha, 1, only=config.inner_only(cfg))
     assert _same(adapted, {k: v for k, v in params.items() if k not in steps})
 
 
@@ -120,7 +120,7 @@ def test_moving_average_of_the_parameters_resumes_exactly_and_is_what_the_policy
     trajectory = [train.train(cfg, tmp_path / "split", progress=False, stop_after=1)]
     for _ in range(3):
         trajectory.append(train.train(cfg, tmp_path / "split", resume=True, progress=False, stop_after=1))
-    a, b = (train.load_checkpoint(tmp_path / r / "checkpoint.npz") for r in ("whole", "split"))
+    a, b = (checkpoint.load(tmp_path / r / "checkpoint.npz") for r in ("whole", "split"))
     assert _same(a["params"], whole) and _same(b["params"], whole) and _same(a["ema"], b["ema"])
     # ema_0 = initial parameters, ema_t = 0.5 ema_{t-1} + 0.5 params_t, written out in float64
     expected = {k: v.astype(np.float64) for k, v in network.init_params(a["network"], np.random.default_rng(0)).items()}
@@ -130,15 +130,15 @@ def test_moving_average_of_the_parameters_resumes_exactly_and_is_what_the_policy
         np.testing.assert_allclose(a["ema"][k], expected[k], rtol=1e-6, atol=1e-7)
         assert a["ema"][k].dtype == np.float32
     assert not _same(a["ema"], a["params"])
-    assert train.policy_params(a) is a["ema"] and train.policy_params(a, raw=True) is a["params"]
+    assert checkpoint.policy_params(a) is a["ema"] and checkpoint.policy_params(a, raw=True) is a["params"]
     train.train(dataclasses.replace(tiny, iterations=1), tmp_path / "plain", progress=False)
-    assert train.load_checkpoint(tmp_path / "plain" / "checkpoint.npz")["ema"] is None
+    assert checkpoint.load(tmp_path / "plain" / "checkpoint.npz")["ema"] is None
     with pytest.raises(ValueError, match="decay, in"):
         train.train(dataclasses.replace(tiny, ema=1.0), tmp_path / "bad", progress=False)
 
 
 def test_learning_rate_schedules():
-    cfg = dataclasses.replace(train.TrainConfig(), lr=1e-3, iterations=100)
+    cfg = dataclasses.replace(config.TrainConfig(), lr=1e-3, iterations=100)
     assert [train.learning_rate(cfg, i) for i in (0, 50, 99)] == [1e-3] * 3
     cos = dataclasses.replace(cfg, lr_schedule="cosine")
     assert train.learning_rate(cos, 0) == pytest.approx(1e-3)
@@ -154,20 +154,20 @@ def test_corrupt_checkpoint_is_named(tmp_path):
     bad = tmp_path / "checkpoint.npz"
     bad.write_bytes(b"PK\x03\x04 not really")
     with pytest.raises(ValueError, match="not a readable oneshot checkpoint"):
-        train.load_checkpoint(bad)
+        checkpoint.load(bad)
     with pytest.raises(FileNotFoundError, match="oneshot.train"):
-        train.load_checkpoint(tmp_path / "missing.npz")
+        checkpoint.load(tmp_path / "missing.npz")
     # NaN in the parameters or in their moving average: refused, naming the array
     params = network.init_params(network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,)),
                                  np.random.default_rng(0))
     for where in ("params", "ema"):
         poisoned = {**params, "out_b": np.full_like(params["out_b"], np.nan)}
         path = tmp_path / f"nan_{where}.npz"
-        train.save_checkpoint(path, poisoned if where == "params" else params, optim.adam_init(params), 1,
-                              np.random.default_rng(0), train.TrainConfig(ema=0.5), network.NetworkConfig(),
+        checkpoint.save(path, poisoned if where == "params" else params, optim.adam_init(params), 1,
+                              np.random.default_rng(0), config.TrainConfig(ema=0.5), network.NetworkConfig(),
                               ema=poisoned if where == "ema" else params)
         with pytest.raises(ValueError, match=f"'{where}/out_b' contains NaN"):
-            train.load_checkpoint(path)
+            checkpoint.load(path)
 
 
 def test_wilson_interval_against_known_values():
@@ -199,7 +199,7 @@ def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, caps
     assert results["adaptation_gain"]["pairs"] == 2
     # the trial scenes are not the demos' scenes
     heldout = data.load(tiny.heldout_data)
-    world_seeds = {evaluate.EVAL_SEED_OFFSET + i * 1000 + j for i in range(2) for j in range(3)}
+    world_seeds = {imitation.trial_seed(0, i, j) for i in range(2) for j in range(3)}
     assert not world_seeds & set(heldout["seeds"].ravel().tolist())
 
 
@@ -273,8 +273,8 @@ def test_maml_breakdown_finds_every_part_of_a_meta_gradient():
 def test_the_shipped_policy_is_the_default_profiles_run():
     """The README's claim: `python -m oneshot.train --profile default` reproduces the shipped policy."""
     from oneshot.demo import PRETRAINED
-    ckpt = train.load_checkpoint(PRETRAINED)
-    assert ckpt["config"] == train.PROFILES["default"]
-    assert ckpt["iteration"] == train.PROFILES["default"].iterations
+    ckpt = checkpoint.load(PRETRAINED)
+    assert ckpt["config"] == config.PROFILES["default"]
+    assert ckpt["iteration"] == config.PROFILES["default"].iterations
     assert ckpt["ema"] is not None and set(ckpt["ema"]) == set(ckpt["params"])   # the profile keeps an average
     assert os.path.getsize(PRETRAINED) < 2_000_000

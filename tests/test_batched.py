@@ -1,0 +1,47 @@
+"""Tests for oneshot/batched.py, the training path of MAML: `value_and_grads` against autograd's own
+`value_and_grad`, to second order. (The batched meta-objective against the plain per-task loop of
+oneshot/maml.py, on the real network: tests/test_imitation.py.)"""
+import autograd.numpy as anp
+import numpy as np
+import pytest
+from autograd import grad, value_and_grad
+from autograd.test_util import check_grads
+
+from oneshot.batched import value_and_grads
+from test_maml import make_demo, make_mlp, mlp_loss
+
+
+# ----- value_and_grads: autograd's value_and_grad for a dict of arrays, one root per array -----
+
+def test_value_and_grads_equals_autograd_value_and_grad_and_gives_zeros_for_unused_arrays():
+    rng = np.random.default_rng(7)
+    params, demo = make_mlp(rng), make_demo(rng)
+    params["unused"] = rng.normal(size=(2, 3))
+    value, grads = value_and_grads(mlp_loss, params, demo)
+    ref_value, ref_grads = value_and_grad(mlp_loss)(params, demo)
+    assert value == ref_value and grads.keys() == params.keys()
+    for k in params:
+        np.testing.assert_array_equal(grads[k], ref_grads[k])
+    assert not grads["unused"].any() and grads["unused"].shape == (2, 3)
+    # an output that does not depend on the arrays at all: its value, and zero gradients
+    value, grads = value_and_grads(lambda p: 2.5, params)
+    assert value == 2.5 and all(not g.any() and g.shape == params[k].shape for k, g in grads.items())
+
+
+def test_value_and_grads_nests_to_second_order():
+    """Inside an outer gradient (as in MAML's inner steps) its backward pass is recorded: the
+    derivative of a function of the gradient matches autograd's own nesting and finite differences."""
+    rng = np.random.default_rng(8)
+    params, demo = make_mlp(rng), make_demo(rng)
+
+    def gradient_norm(p, grads_of):
+        g = grads_of(p)
+        return sum(anp.sum(g[k] ** 2) for k in g)
+
+    ours = lambda p: gradient_norm(p, lambda q: value_and_grads(mlp_loss, q, demo)[1])
+    autograds = lambda p: gradient_norm(p, lambda q: grad(mlp_loss)(q, demo))
+    assert ours(params) == pytest.approx(autograds(params), rel=1e-12)
+    g1, g2 = grad(ours)(params), grad(autograds)(params)
+    for k in params:
+        np.testing.assert_allclose(g1[k], g2[k], rtol=1e-10, atol=1e-12)
+    check_grads(lambda w1: ours({**params, "W1": w1}), modes=["rev"], order=2)(params["W1"])
