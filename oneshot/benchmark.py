@@ -16,7 +16,6 @@ import dataclasses
 import json
 import os
 import pstats
-import resource
 import sys
 import time
 
@@ -247,33 +246,6 @@ def _sgemm_rate(n=1024, repeats=10):
     return 2 * n ** 3 / float(np.median(times)) / 1e9
 
 
-def machine():
-    """What the figures were measured on: CPU model, cores, NumPy and its BLAS, and the widest SIMD
-    extensions NumPy found. Float32 results differ in the last bits between CPUs whose BLAS and NumPy
-    pick different kernels (e.g. with or without AVX-512), and training amplifies such differences
-    (docs/results.md)."""
-    cpu = "unknown"
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
-    except OSError:
-        pass
-    try:
-        config = np.show_config(mode="dicts")
-    except TypeError:                                    # NumPy < 1.26 only prints its config
-        config = {}
-    blas = config.get("Build Dependencies", {}).get("blas", {})
-    return {"cpu": cpu, "cores": os.cpu_count(), "numpy": np.__version__,
-            "blas": f"{blas.get('name', '?')} {blas.get('version', '?')}",
-            "simd": config.get("SIMD Extensions", {}).get("found", [])}
-
-
-def peak_memory_mb():
-    """Peak resident memory (MB) of this process and of the largest of its finished worker processes."""
-    return (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-            resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)
-
-
 def main(argv=None):
     p = argparse.ArgumentParser(prog="python -m oneshot.benchmark", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -317,10 +289,10 @@ def main(argv=None):
                                        ("shards", args.shards)) if v is not None}
         bench = bench_breakdown if args.breakdown else bench_meta_iteration
         result = bench(args.iterations, args.profile, **overrides)
-    main_mb, worker_mb = peak_memory_mb()
+    main_mb, worker_mb = host.peak_memory_mb()
     result["peak_memory_mb"] = round(main_mb, 1)
     result["peak_worker_memory_mb"] = round(worker_mb, 1)
-    result["machine"] = machine()
+    result["machine"] = host.machine()
     json.dump(result, sys.stdout, indent=1)
     print()
 

@@ -24,11 +24,13 @@ from oneshot.world import observation_state
 
 @dataclass(frozen=True)
 class ExpertConfig:
-    w_dist: float = 1.0
-    w_ctrl: float = 1e-3
-    w_vel: float = 1e-4
-    w_dist_final: float = 10.0
-    w_vel_final: float = 1e-2
+    """The expert's cost weights (the cost of the module docstring is in arbitrary units, so each weight
+    is per unit of what it multiplies), its planner's resolution, and DART noise."""
+    w_dist: float = 1.0          # per m^2 of squared end-effector-to-target distance, every step
+    w_ctrl: float = 1e-3         # per (N m)^2 of squared (unsquashed) control v, every step
+    w_vel: float = 1e-4          # per (rad/s)^2 of squared joint velocity, every step
+    w_dist_final: float = 10.0   # per m^2, final state only
+    w_vel_final: float = 1e-2    # per (rad/s)^2, final state only
     # The planner integrates its model with this many substeps per control step (Pymunk uses the
     # world's 10): the same equations on a coarser grid halve the cost of a plan, and the feedback
     # gains absorb the small difference (`python -m oneshot.benchmark expert`: still 100% success).

@@ -1,5 +1,6 @@
-"""What a process asks of the machine, in one place: fewer page faults from malloc, and the number of
-BLAS threads. Both are no-ops where the C library or NumPy's BLAS does not offer them.
+"""The machine, in one place: what a process asks of it (fewer page faults from malloc, the number of
+BLAS threads; no-ops where the C library or NumPy's BLAS does not offer them) and what it is (the CPU,
+NumPy's BLAS and SIMD level, peak memory), which every benchmark figure records.
 
 Why the BLAS thread count matters: during meta-training the matrix products are small (40 output
 channels), and OpenBLAS's threads spin while they wait for work. With two shard processes on two
@@ -10,6 +11,7 @@ while the other core was busy (docs/results.md).
 import ctypes
 import glob
 import os
+import resource
 
 import numpy as np
 
@@ -54,3 +56,30 @@ def blas_threads(n):
     before = get()
     set_(int(n))
     return before
+
+
+def machine():
+    """What the figures were measured on: CPU model, cores, NumPy and its BLAS, and the widest SIMD
+    extensions NumPy found. Float32 results differ in the last bits between CPUs whose BLAS and NumPy
+    pick different kernels (e.g. with or without AVX-512), and training amplifies such differences
+    (docs/results.md)."""
+    cpu = "unknown"
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    try:
+        config = np.show_config(mode="dicts")
+    except TypeError:                                    # NumPy < 1.26 only prints its config
+        config = {}
+    blas = config.get("Build Dependencies", {}).get("blas", {})
+    return {"cpu": cpu, "cores": os.cpu_count(), "numpy": np.__version__,
+            "blas": f"{blas.get('name', '?')} {blas.get('version', '?')}",
+            "simd": config.get("SIMD Extensions", {}).get("found", [])}
+
+
+def peak_memory_mb():
+    """Peak resident memory (MB) of this process and of the largest of its finished worker processes."""
+    return (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)

@@ -28,12 +28,13 @@ import numpy as np
 
 @dataclass(frozen=True)
 class ILQGConfig:
+    """iLQG's stopping rules, regularisation schedule and line search (Tassa et al. 2012, Sec. II-F)."""
     max_iterations: int = 100
     tol_cost: float = 1e-4       # stop when a full step is expected to lower the cost by less than this fraction
     tol_grad: float = 1e-4       # stop when the open-loop step is this small (relative to u)
     mu_init: float = 1e-3        # regularisation of V_xx (Tassa et al. eq. 10)
-    mu_min: float = 1e-6
-    mu_max: float = 1e10
+    mu_min: float = 1e-6         # the smallest non-zero mu: lowering it further sets it to 0
+    mu_max: float = 1e10         # raising mu past this ends the solve, not converged
     mu_factor: float = 1.6       # delta_0 of Tassa et al.
     alphas: tuple = tuple(10.0 ** np.linspace(0, -3, 11))   # backtracking line search
     min_reduction_ratio: float = 0.0   # accept when actual / expected reduction > this

@@ -31,8 +31,10 @@ from oneshot.palette import PaletteConfig
 
 @dataclass(frozen=True)
 class WorldConfig:
-    arm: ArmConfig = field(default_factory=ArmConfig)
-    palette: PaletteConfig = field(default_factory=PaletteConfig)
+    """Everything a scene and an episode depend on: the arm, the colours, the arena, the task's
+    horizon and success radius (Section IV). Lengths in metres, angles in radians."""
+    arm: ArmConfig = field(default_factory=ArmConfig)          # the arm's physics (oneshot.arm)
+    palette: PaletteConfig = field(default_factory=PaletteConfig)   # colours, so tasks (oneshot.palette)
     split: str = "train"              # which colours scenes are drawn from: "train" or "heldout"
     horizon: int = 20                 # T, control steps per episode
     image_size: int = 32              # 32 by default; 64 also works
