@@ -15,7 +15,7 @@ from autograd.extend import defvjp, primitive
 from autograd.tracer import getval, isbox, new_box, trace_stack
 from autograd.util import toposort
 
-from oneshot.maml import check_step, split
+from oneshot.maml import check_step, constant, split
 
 
 @primitive
@@ -106,9 +106,10 @@ def meta_objective_batched(params, adapt, evaluate, loss_tasks, alpha, steps, fi
     B = _batch_size(adapt)
     fixed, keys, step = split(params, only, alpha)
     adapted = {k: np.ones((B,) + (1,) * np.ndim(params[k]), dtype=params[k].dtype) * params[k] for k in keys}
-    loss = lambda sub, d: loss_tasks({**fixed, **sub}, d)
+    inner = constant(fixed) if first_order else fixed        # first order: the inner gradient is a constant
+    loss = lambda sub, d: loss_tasks({**inner, **sub}, d)
     for _ in range(steps):
-        _, g = value_and_grads(loss, {k: getval(v) for k, v in adapted.items()} if first_order else adapted, adapt)
+        _, g = value_and_grads(loss, constant(adapted) if first_order else adapted, adapt)
         if reduce is not None:
             g = {k: reduce(v) for k, v in g.items()}
         adapted = {k: _step(adapted[k], g[k], step[k]) for k in adapted}

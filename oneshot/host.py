@@ -4,9 +4,8 @@ NumPy's BLAS and SIMD level, peak memory), which every benchmark figure records.
 
 Why the BLAS thread count matters: during meta-training the matrix products are small (40 output
 channels), and OpenBLAS's threads spin while they wait for work. With two shard processes on two
-cores, two spinning BLAS threads each made a meta-iteration 5x slower than one thread each; a
-notebook cell that meta-trains for a few iterations ran 36 s with 2 BLAS threads and 4.7 s with 1
-while the other core was busy (docs/results.md).
+cores, two spinning BLAS threads each made a meta-iteration 5x slower than one thread each; while
+two trainings ran, notebook 3 took 36 s with 2 BLAS threads and 4.7 s with 1 (docs/results.md).
 """
 import ctypes
 import glob

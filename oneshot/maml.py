@@ -90,12 +90,20 @@ def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False,
     """
     alpha = check_step(alpha, steps)
     fixed, keys, step = split(params, only, alpha)
-    loss = lambda theta: loss_fn({**fixed, **theta}, demo)
+    loss = lambda theta, shared: loss_fn({**shared, **theta}, demo)
     theta = {k: params[k] for k in keys}
     for _ in range(steps):
-        g = grad(loss)({k: getval(v) for k, v in theta.items()} if first_order else theta)
+        if first_order:              # the inner gradient as a constant: every parameter cut from the outer graph
+            g = grad(loss)(constant(theta), constant(fixed))
+        else:
+            g = grad(loss)(theta, fixed)
         theta = {k: theta[k] - step[k] * g[k] for k in theta}                 # eq. (1)
     return {**fixed, **theta}
+
+
+def constant(arrays):
+    """The values of a dict of arrays, cut from any gradient being traced (autograd's `getval`)."""
+    return {k: getval(v) for k, v in arrays.items()}
 
 
 def meta_objective(params, tasks, loss_fn, alpha, steps, first_order=False, only=None):

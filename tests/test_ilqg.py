@@ -1,5 +1,7 @@
 """iLQG (oneshot.ilqg) against an exact reference, and the expert (oneshot.expert) against the
 paper's success criterion."""
+import dataclasses
+
 import numpy as np
 
 from oneshot import arm, expert, ilqg
@@ -67,7 +69,34 @@ def test_ilqg_on_the_arm_descends_and_converges():
     assert history[-1] < 0.3 * history[0]
     final = arm.forward_kinematics(result.x[-1, :2], world.config.arm)
     assert np.linalg.norm(final - info["target_position"]) < 0.01
-    assert np.abs(np.tanh(result.u / 0.5) * 0.5).max() <= world.config.arm.max_torque
+
+
+def test_the_plan_drives_the_arm_through_the_torque_squashing():
+    """The plan's controls v are unbounded; the arm gets u_max tanh(v / u_max) (written out here, not
+    taken from oneshot.expert). Its planned states are the analytic arm driven by those torques; in this
+    scene the plan asks for more than the bound, where the squashing really changes the torque; and the
+    expert's first command in Pymunk (the state is the plan's start, so no feedback) is the squashed
+    first control."""
+    world = ReachWorld()
+    _, info = world.reset(seed=7)
+    x0, lim = world.state.copy(), world.config.arm.max_torque
+    result = expert.plan(x0, info["target_position"], world.config.arm, world.config.horizon)
+    torque = lim * np.tanh(result.u / lim)                                   # (T, 2) N m
+    model = dataclasses.replace(world.config.arm, substeps=expert.ExpertConfig().model_substeps)
+    x = [x0]
+    for u in torque:
+        x.append(arm.step(x[-1], u, model))
+    np.testing.assert_allclose(np.array(x), result.x, rtol=0, atol=1e-12)
+    over = np.abs(result.u) > lim
+    assert over.any() and np.abs(result.u).max() > 1.5 * lim                 # the bound binds in this scene
+    assert np.all(np.abs(torque[over]) < lim) and np.all(np.abs(torque[over]) > 0.7 * lim)
+    x = [x0]                                                                 # unsquashed (the arm clips):
+    for u in result.u:                                                       # not the planned states
+        x.append(arm.step(x[-1], u, model))
+    assert np.abs(np.array(x) - result.x).max() > 0.1
+    demo = expert.demonstrate(world, seed=7)
+    np.testing.assert_allclose(demo["actions"][0], torque[0].astype(np.float32), rtol=1e-6)
+    assert np.abs(demo["actions"]).max() <= lim and np.abs(demo["actions"]).max() > 0.5 * lim
 
 
 def test_expert_meets_the_success_criterion_on_a_sample_of_scenes():

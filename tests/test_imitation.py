@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from autograd import grad
 
+from helpers import assert_batched_equals_loop
 from oneshot import batched, imitation, maml, network
 
 CFG = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5, 5))
@@ -26,13 +27,8 @@ def test_imitation_loss_is_the_summed_squared_error_frame_by_frame(rng):
 def test_batched_meta_objective_equals_the_per_task_loop(rng):
     params = network.init_params(CFG, rng, dtype=np.float64)
     adapt, evaluate = _demos(rng, B=3), _demos(rng, B=3)
-    tasks = [(tuple(a[b] for a in adapt), tuple(e[b] for e in evaluate)) for b in range(3)]
     for first_order in (False, True):
-        v1, g1 = maml.meta_gradient(params, tasks, imitation.imitation_loss, 0.01, 2, first_order)
-        v2, g2 = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.01, 2, first_order)
-        assert v2 == pytest.approx(v1, rel=1e-10)
-        for k in params:
-            np.testing.assert_allclose(g2[k], g1[k], rtol=1e-8, atol=1e-12)
+        assert_batched_equals_loop(params, adapt, evaluate, imitation.imitation_loss, 0.01, 2, first_order=first_order)
 
 
 def test_adapting_only_the_convolutions_leaves_the_rest_and_matches_the_loop(rng):
@@ -42,13 +38,10 @@ def test_adapting_only_the_convolutions_leaves_the_rest_and_matches_the_loop(rng
     for k in params:
         assert (np.array_equal(adapted[k], params[k])) != k.startswith("conv"), k
     # batched (non-adapted parameters shared across tasks) == per-task loop, value and gradient
-    tasks = [(tuple(a[b] for a in adapt), tuple(e[b] for e in evaluate)) for b in range(3)]
-    v1, g1 = maml.meta_gradient(params, tasks, imitation.imitation_loss, 0.05, 2, only=("conv",))
-    v2, g2 = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.05, 2, only=("conv",))
-    assert v2 == pytest.approx(v1, rel=1e-10)
-    for k in params:
-        np.testing.assert_allclose(g2[k], g1[k], rtol=1e-8, atol=1e-12)
+    (v1, _), _ = assert_batched_equals_loop(params, adapt, evaluate, imitation.imitation_loss, 0.05, 2,
+                                            only=("conv",))
     # and it is a different objective from adapting everything
+    tasks = [(tuple(a[b] for a in adapt), tuple(e[b] for e in evaluate)) for b in range(3)]
     v_all, _ = maml.meta_gradient(params, tasks, imitation.imitation_loss, 0.05, 2)
     assert v_all != pytest.approx(v1, rel=1e-6)
     with pytest.raises(ValueError, match="no parameter starts with"):
@@ -138,10 +131,26 @@ def test_learnt_step_sizes_batched_equals_the_per_task_loop(rng):
     params = {**params, **maml.init_step_sizes(params, 0.05, only=("conv0_",))}
     params[maml.STEP_PREFIX + "conv0_w"] = params[maml.STEP_PREFIX + "conv0_w"] * rng.uniform(0, 2, params["conv0_w"].shape)
     adapt, evaluate = _demos(rng, B=3), _demos(rng, B=3)
-    tasks = [(tuple(a[b] for a in adapt), tuple(e[b] for e in evaluate)) for b in range(3)]
-    v1, g1 = maml.meta_gradient(params, tasks, imitation.imitation_loss, 0.0, 1, only=("conv0_",))
-    v2, g2 = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.0, 1, only=("conv0_",))
-    assert v2 == pytest.approx(v1, rel=1e-10)
-    assert g2.keys() == params.keys() and np.abs(g2[maml.STEP_PREFIX + "conv0_w"]).max() > 0
-    for k in params:
-        np.testing.assert_allclose(g2[k], g1[k], rtol=1e-8, atol=1e-12)
+    _, (_, g2) = assert_batched_equals_loop(params, adapt, evaluate, imitation.imitation_loss, 0.0, 1,
+                                            only=("conv0_",))
+    assert np.abs(g2[maml.STEP_PREFIX + "conv0_w"]).max() > 0
+
+
+def test_trial_seeds_are_distinct_and_the_ones_evaluation_always_used():
+    """Every (seed, task, trial) of the documented range gets its own scene, and the seed is the formula
+    evaluation used before `trial_seed` existed, so the shipped policy's meta-test scenes are unchanged."""
+    seeds, tasks, trials = range(3), range(100), range(1000)
+    got = np.array([[[imitation.trial_seed(s, i, j) for j in trials] for i in tasks] for s in seeds])
+    s, i, j = np.meshgrid(seeds, tasks, trials, indexing="ij")
+    np.testing.assert_array_equal(got, 1_000_003 + s * 100_000 + i * 1000 + j)
+    assert len(np.unique(got)) == got.size == 300_000
+    # far seeds stay apart from each other's trials too: the last trial of seed s, the first of seed s + 1
+    for s in (0, 7, 12_345):
+        assert imitation.trial_seed(s, 99, 999) < imitation.trial_seed(s + 1, 0, 0)
+
+
+@pytest.mark.parametrize("seed, task, trial", [(0, 100, 0), (0, 0, 1000), (-1, 0, 0), (0, -1, 0), (0, 0, -1)])
+def test_trial_seed_outside_its_range_is_refused_naming_the_range(seed, task, trial):
+    with pytest.raises(ValueError, match=rf"0 <= task < 100, 0 <= trial < 1000 and seed >= 0; "
+                                         rf"got seed={seed}, task={task}, trial={trial}"):
+        imitation.trial_seed(seed, task, trial)

@@ -1,6 +1,7 @@
 """Tests for oneshot/maml.py (paper Section II, eq. 1).
 
-The model is a tiny tanh MLP defined here, independent of oneshot/network.py. Gradients are checked
+The model is a tiny tanh MLP (tests/helpers.py), independent of oneshot/network.py. Eq. (1) is
+checked against the update written out by hand with autograd's `grad`. Gradients are checked
 against central finite differences of the meta-objective, against autograd's own recursive
 second-order check, and against closed forms for linear least squares.
 """
@@ -10,35 +11,10 @@ import pytest
 from autograd import grad
 from autograd.test_util import check_grads
 
+from helpers import make_demo, make_mlp, make_tasks, mlp_loss
+from oneshot import batched
 from oneshot.maml import (STEP_PREFIX, clip_gradients, init_step_sizes, inner_update, meta_gradient,
                           meta_objective)
-
-
-# ----- a tiny model: 2-layer tanh MLP with a summed squared-error loss (stands in for eq. 2) -----
-
-def mlp_loss(params, demo):
-    """demo = (x: (T, d_in), y: (T, d_out)); summed squared error of a 1-hidden-layer tanh MLP."""
-    x, y = demo
-    hidden = anp.tanh(x @ params["W1"] + params["b1"])
-    return anp.sum((hidden @ params["W2"] + params["b2"] - y) ** 2)
-
-
-def make_mlp(rng, d_in=3, d_hidden=5, d_out=2, dtype=np.float64):
-    params = {
-        "W1": rng.normal(0, 0.7, (d_in, d_hidden)),
-        "b1": rng.normal(0, 0.1, d_hidden),
-        "W2": rng.normal(0, 0.7, (d_hidden, d_out)),
-        "b2": rng.normal(0, 0.1, d_out),
-    }
-    return {k: v.astype(dtype) for k, v in params.items()}
-
-
-def make_demo(rng, T=6, d_in=3, d_out=2, dtype=np.float64):
-    return rng.normal(size=(T, d_in)).astype(dtype), rng.normal(size=(T, d_out)).astype(dtype)
-
-
-def make_tasks(rng, n_tasks=3, **kw):
-    return [(make_demo(rng, **kw), make_demo(rng, **kw)) for _ in range(n_tasks)]
 
 
 def axpy(a, x, y):
@@ -93,6 +69,12 @@ def test_first_order_gradient_is_eval_gradient_at_adapted_params():
         for _ in range(steps):
             g = grad_loss(adapted, adapt_demo)
             adapted = {k: adapted[k] - alpha * g[k] for k in adapted}
+        # First order changes the gradient only: the adapted parameters are eq. (1)'s, bit for bit.
+        adapted_fo = inner_update(params, adapt_demo, mlp_loss, alpha, steps, first_order=True)
+        adapted_so = inner_update(params, adapt_demo, mlp_loss, alpha, steps, first_order=False)
+        for k in params:
+            np.testing.assert_array_equal(adapted_fo[k], adapted_so[k])
+            np.testing.assert_allclose(adapted_fo[k], adapted[k], rtol=1e-13, atol=1e-15)
         g_eval = grad_loss(adapted, eval_demo)
         expected = {k: expected[k] + g_eval[k] / len(tasks) for k in expected}
         expected_value += mlp_loss(adapted, eval_demo) / len(tasks)
@@ -109,7 +91,82 @@ def test_first_order_gradient_is_eval_gradient_at_adapted_params():
     assert diff > 1e-2 * norm
 
 
+def _first_order_reference_only_w1(params, tasks, alpha, steps):
+    """First-order MAML adapting W1 alone, by hand: the mean over tasks of the plain gradient of the
+    eval loss at the adapted parameters (every inner gradient a constant)."""
+    expected = {k: np.zeros_like(v) for k, v in params.items()}
+    for adapt_demo, eval_demo in tasks:
+        adapted = dict(params)
+        for _ in range(steps):
+            adapted["W1"] = adapted["W1"] - alpha * grad(mlp_loss)(adapted, adapt_demo)["W1"]
+        g_eval = grad(mlp_loss)(adapted, eval_demo)
+        expected = {k: expected[k] + g_eval[k] / len(tasks) for k in params}
+    return expected
+
+
+def test_first_order_gradient_of_the_adapted_parameters_with_only():
+    rng = np.random.default_rng(12)
+    params, tasks = make_mlp(rng), make_tasks(rng, n_tasks=2)
+    expected = _first_order_reference_only_w1(params, tasks, 0.05, 2)
+    _, grads = meta_gradient(params, tasks, mlp_loss, 0.05, 2, first_order=True, only=("W1",))
+    np.testing.assert_allclose(grads["W1"], expected["W1"], rtol=1e-10, atol=1e-12)
+
+
+def test_first_order_gradient_of_the_shared_parameters_with_only():
+    """The shared parameters' first-order meta-gradient is the plain eval gradient too: with the inner
+    gradient a constant, they reach the eval loss directly and through no inner step."""
+    rng = np.random.default_rng(12)
+    params, tasks = make_mlp(rng), make_tasks(rng, n_tasks=2)
+    expected = _first_order_reference_only_w1(params, tasks, 0.05, 2)
+    _, grads = meta_gradient(params, tasks, mlp_loss, 0.05, 2, first_order=True, only=("W1",))
+    # the batched training path (tasks stacked on a leading axis; W1 gets one copy per task) agrees
+    adapt, evaluate = (tuple(np.stack(parts) for parts in zip(*side)) for side in zip(*tasks))
+    _, batched_grads = batched.meta_gradient_batched(params, adapt, evaluate, mlp_loss, 0.05, 2, True, ("W1",))
+    for k in ("b1", "W2", "b2"):
+        np.testing.assert_allclose(grads[k], expected[k], rtol=1e-10, atol=1e-12, err_msg=k)
+        np.testing.assert_allclose(batched_grads[k], expected[k], rtol=1e-10, atol=1e-12, err_msg=k)
+
+
 # ----- the inner update itself -----
+
+@pytest.mark.parametrize("steps", [1, 2])
+def test_inner_update_is_eq1_written_out(steps):
+    """theta' = theta - alpha * grad L(theta, demo), repeated: against autograd's `grad` by hand."""
+    rng = np.random.default_rng(13)
+    params, demo = make_mlp(rng), make_demo(rng)
+    alpha = 0.05
+    theta = dict(params)
+    for _ in range(steps):
+        g = grad(mlp_loss)(theta, demo)
+        theta = {k: theta[k] - alpha * g[k] for k in theta}
+    adapted = inner_update(params, demo, mlp_loss, alpha, steps)
+    assert list(adapted) == list(params)
+    for k in params:
+        np.testing.assert_allclose(adapted[k], theta[k], rtol=1e-13, atol=1e-15, err_msg=k)
+        assert np.abs(adapted[k] - params[k]).min() > 0, k          # every element moved
+    if steps == 2:   # the second step takes the gradient at the once-adapted parameters, not the first again
+        g0 = grad(mlp_loss)(params, demo)
+        assert not np.allclose(adapted["W1"], params["W1"] - 2 * alpha * g0["W1"], rtol=1e-6, atol=1e-9)
+
+
+def test_inner_update_with_only_moves_only_the_chosen_parameters():
+    """only=("W1",): eq. (1) on W1 alone (its gradient taken with the others fixed); the rest keep
+    their values exactly. Prefixes match: only=("W",) moves W1 and W2 and neither bias."""
+    rng = np.random.default_rng(14)
+    params, demo = make_mlp(rng), make_demo(rng)
+    alpha = 0.05
+    w1 = params["W1"]
+    for _ in range(2):
+        w1 = w1 - alpha * grad(mlp_loss)({**params, "W1": w1}, demo)["W1"]
+    adapted = inner_update(params, demo, mlp_loss, alpha, 2, only=("W1",))
+    assert adapted.keys() == params.keys()
+    np.testing.assert_allclose(adapted["W1"], w1, rtol=1e-13, atol=1e-15)
+    assert np.abs(adapted["W1"] - params["W1"]).min() > 0
+    for k in ("b1", "W2", "b2"):
+        np.testing.assert_array_equal(adapted[k], params[k])
+    moved = inner_update(params, demo, mlp_loss, alpha, 1, only=("W",))
+    assert [k for k in params if not np.array_equal(moved[k], params[k])] == ["W1", "W2"]
+
 
 def test_adaptation_lowers_adaptation_loss():
     rng = np.random.default_rng(3)

@@ -1,9 +1,12 @@
 """Tests for oneshot/network.py: the policy network of MIL Section IV.
 
 Each test checks a property against something independent: finite differences (to second order,
-since MAML differentiates through the gradient), a naive loop convolution, the adjoint identity,
-a hand count of FLOPs, and the per-task `predict` for the batched `predict_tasks`.
+since MAML differentiates through the gradient), the plain-autograd.numpy `forward_reference` for the
+fast `forward` (values and gradients), a naive loop convolution for `conv2d_reference`, a hand count
+of FLOPs, and the per-task `predict` for the batched `predict_tasks`. The layer primitives themselves:
+tests/test_layers.py.
 """
+import dataclasses
 
 import autograd.numpy as anp
 import numpy as np
@@ -12,29 +15,11 @@ from autograd import grad
 from autograd.core import primitive_vjps
 from autograd.test_util import check_grads
 
-from oneshot.layers import (_col2im_3x3_stride2, _col2im_any, add_bias, bias_grad, broadcast_bias, col2im,
-                            concat_last, conv2d, im2col, matmul, matmul_dw, matmul_dx, relu, spatial_soft_argmax)
-from oneshot.network import (NetworkConfig, count_flops, forward, forward_reference, images_to_float, init_params,
-                             param_shapes, predict, predict_tasks)
+from helpers import naive_conv2d, squared_error
+from oneshot.network import (STRIDE, NetworkConfig, conv2d_reference, count_flops, forward, forward_reference,
+                             images_to_float, init_params, param_shapes, predict, predict_tasks)
 
 TINY = NetworkConfig(image_size=8, channels=(2, 3), hidden=(5, 4), state_dim=3, action_dim=2)
-
-
-def naive_conv2d(x, w, b, stride):
-    """Reference 'same' convolution with explicit loops over output pixels (independent of im2col)."""
-    n, h, width, c_in = x.shape
-    k, _, _, c_out = w.shape
-    p = k // 2
-    h_out, w_out = (h + 2 * p - k) // stride + 1, (width + 2 * p - k) // stride + 1
-    out = np.zeros((n, h_out, w_out, c_out))
-    for i in range(h_out):
-        for j in range(w_out):
-            for dy in range(k):
-                for dx in range(k):
-                    y, xx = i * stride + dy - p, j * stride + dx - p
-                    if 0 <= y < h and 0 <= xx < width:
-                        out[:, i, j, :] += x[:, y, xx, :] @ w[dy, dx]
-    return out + b
 
 
 def tiny_problem(config=TINY, T=2, dtype=np.float64, seed=0):
@@ -48,81 +33,74 @@ def tiny_problem(config=TINY, T=2, dtype=np.float64, seed=0):
     return params, images, states, actions
 
 
-@pytest.mark.parametrize("stride, size", [(2, 7), (2, 8), (1, 5)])
-def test_conv2d_matches_naive_loops(stride, size):
-    rng = np.random.default_rng(1)
-    x = rng.standard_normal((2, size, size + 1, 3))
-    w = rng.standard_normal((3, 3, 3, 4))
+# ----- the fast forward against the plain-autograd.numpy reference -----
+
+OPTIONS = {"flattened": {}, "feature_points": {"feature_points": True}, "bias_transform": {"bias_transform": 3},
+           "both": {"feature_points": True, "bias_transform": 2}}
+
+
+@pytest.mark.parametrize("options", OPTIONS.values(), ids=OPTIONS.keys())
+def test_forward_equals_the_reference_values_and_gradients(options):
+    """`forward` (custom primitives) computes `forward_reference` (plain autograd.numpy): the actions,
+    the gradient of eq. (2) w.r.t. every parameter, and the MAML pattern's second-order gradient."""
+    params, images, states, actions = tiny_problem(dataclasses.replace(TINY, **options), T=3)
+    np.testing.assert_allclose(forward(params, images, states), forward_reference(params, images, states),
+                               rtol=1e-10, atol=1e-12)
+    fast, ref = squared_error(forward, images, states, actions), squared_error(forward_reference, images, states, actions)
+    g_fast, g_ref = grad(fast)(params), grad(ref)(params)
+    assert g_fast.keys() == g_ref.keys() == params.keys()
+    for k in params:
+        assert np.abs(g_ref[k]).max() > 1e-6, k                     # a real comparison, not 0 == 0
+        np.testing.assert_allclose(g_fast[k], g_ref[k], rtol=1e-10, atol=1e-12, err_msg=k)
+
+    def after_one_step(loss):   # the meta-gradient of one inner step of eq. (1) on the same demo
+        return grad(lambda p: loss({k: p[k] - 0.01 * g for k, g in grad(loss)(p).items()}))(params)
+
+    m_fast, m_ref = after_one_step(fast), after_one_step(ref)
+    for k in params:
+        np.testing.assert_allclose(m_fast[k], m_ref[k], rtol=1e-9, atol=1e-12, err_msg=k)
+
+
+def test_reference_passes_the_second_order_gradient_check():
+    params, images, states, actions = tiny_problem(dataclasses.replace(TINY, feature_points=True, bias_transform=2))
+    check_grads(squared_error(forward_reference, images, states, actions), modes=["rev"], order=2)(params)
+
+
+@pytest.mark.parametrize("stride, size, kernel", [(1, 5, 3), (1, 6, 3), (2, 7, 3), (2, 8, 3), (2, 7, 5), (1, 6, 5)])
+def test_conv2d_reference_matches_naive_loops(stride, size, kernel):
+    rng = np.random.default_rng(9)
+    x = rng.standard_normal((2, size, size + 1, 3))                 # odd and even sides in one image
+    w = rng.standard_normal((kernel, kernel, 3, 4))
     b = rng.standard_normal(4)
-    np.testing.assert_allclose(conv2d(x, w, b, stride), naive_conv2d(x, w, b, stride), rtol=1e-12, atol=1e-12)
+    out = conv2d_reference(x, w, b, stride)
+    assert out.shape == (2, (size - 1) // stride + 1, size // stride + 1, 4)
+    np.testing.assert_allclose(out, naive_conv2d(x, w, b, stride), rtol=1e-12, atol=1e-12)
+    if stride == STRIDE:                                            # the network's stride is the default
+        np.testing.assert_array_equal(conv2d_reference(x, w, b), out)
 
 
-@pytest.mark.parametrize("shape, kernel, stride", [((2, 7, 6, 3), 3, 2), ((1, 8, 8, 2), 3, 2), ((2, 5, 5, 3), 3, 1),
-                                                   ((2, 9, 8, 2), 5, 3), ((1, 6, 7, 2), 5, 2), ((1, 4, 4, 1), 1, 2),
-                                                   ((2, 6, 4, 3), 3, 2)])
-def test_im2col_col2im_are_adjoint(shape, kernel, stride):
-    # <im2col(x), y> == <x, col2im(y)> for every x, y: col2im is exactly the transpose of im2col.
-    # Kernels that are not a multiple of the stride exercise col2im's partial blocks of taps.
-    rng = np.random.default_rng(2)
-    x = rng.standard_normal(shape)
-    y = rng.standard_normal(im2col(x, kernel, stride, kernel // 2).shape)
-    lhs = np.sum(im2col(x, kernel, stride, kernel // 2) * y)
-    rhs = np.sum(x * col2im(y, shape, kernel, stride, kernel // 2))
-    assert lhs == pytest.approx(rhs, rel=1e-12)
-
-
-@pytest.mark.parametrize("shape, dtype", [((1, 2, 2, 1), np.float64), ((2, 4, 6, 3), np.float64),
-                                          ((3, 16, 16, 40), np.float32), ((2, 8, 4, 5), np.float32)])
-def test_col2im_fast_path_gives_the_same_bits(shape, dtype):
-    # The policy's layers (3x3, stride 2, even sides) take `_col2im_3x3_stride2`, which must give
-    # exactly the numbers of the general scatter-add, bit for bit: otherwise retraining with the same
-    # seed would no longer reproduce the shipped policy.
-    rng = np.random.default_rng(5)
-    n, h, w, c = shape
-    cols = rng.standard_normal((n * (h // 2) * (w // 2), 9 * c)).astype(dtype)
-    fast = _col2im_3x3_stride2(cols, shape)
-    slow = np.ascontiguousarray(_col2im_any(cols, shape, 3, 2, 1))
-    assert fast.shape == shape and fast.dtype == dtype
-    assert fast.tobytes() == slow.tobytes()
-    assert col2im(cols, shape, 3, 2, 1).tobytes() == fast.tobytes()         # and col2im takes it
-
-
-@pytest.mark.parametrize("shape", [(2, 5, 6, 2), (2, 6, 4, 2)])    # odd side: general col2im; even: fast
-def test_conv_layer_second_order_gradients(shape):
-    # The conv layer on a non-input activation exercises im2col, col2im and their mutual VJPs.
-    rng = np.random.default_rng(3)
-    x = rng.standard_normal(shape)
-    w = rng.standard_normal((3, 3, 2, 3))
-    b = rng.standard_normal(3)
-    check_grads(lambda x, w, b: anp.sum(anp.sin(conv2d(x, w, b, 2))), modes=["rev"], order=2)(x, w, b)
-
-
-@pytest.mark.parametrize("tasks", [0, 3])
-def test_layer_primitives_are_adjoint_pairs(tasks):
-    # Each primitive is linear in each argument, and its VJP must be its exact transpose:
-    # <f(x), y> == <x, f^T(y)>. Checked for shared weights and per-task weights (a leading task axis).
-    rng = np.random.default_rng(4)
-    lead = (tasks, 2, 5) if tasks else (2, 5)  # (B, T, rows) activations, or (T, rows)
-    x, g = rng.standard_normal(lead + (4,)), rng.standard_normal(lead + (3,))
-    w = rng.standard_normal(((tasks,) if tasks else ()) + (4, 3))
-    ip = lambda a, b: float(np.sum(a * b))
-    assert ip(matmul(x, w), g) == pytest.approx(ip(x, matmul_dx(g, w)), rel=1e-12)
-    assert ip(matmul(x, w), g) == pytest.approx(ip(w, matmul_dw(x, g, tasks)), rel=1e-12)
-    np.testing.assert_allclose(matmul(x, w), x @ (w[:, None] if tasks else w), rtol=1e-12)
-    b = rng.standard_normal(((tasks,) if tasks else ()) + (3,))
-    assert ip(add_bias(np.zeros_like(g), b), g) == pytest.approx(ip(b, bias_grad(g, b.shape)), rel=1e-12)
-    assert ip(broadcast_bias(b, g.shape), g) == pytest.approx(ip(b, bias_grad(g, b.shape)), rel=1e-12)
-    y = rng.standard_normal((6, 16 * 3))  # add_bias's fast path (a multiple of 16 C entries)
-    np.testing.assert_array_equal(add_bias(y.reshape(6, 16, 3), b[0] if tasks else b), y.reshape(6, 16, 3) + (b[0] if tasks else b))
-
-
-def test_concat_relu_primitives_match_numpy_and_have_exact_second_order_gradients():
-    rng = np.random.default_rng(6)
-    a, b = rng.standard_normal((2, 3, 2)), rng.standard_normal((2, 3, 4))
-    np.testing.assert_array_equal(concat_last(a, b), np.concatenate([a, b], axis=-1))
-    np.testing.assert_array_equal(relu(a), np.maximum(a, 0))
-    # sin(...) makes the second derivative of the composition non-zero through every primitive.
-    check_grads(lambda a, b: anp.sum(anp.sin(concat_last(relu(a), b)) * concat_last(b, a)), modes=["rev"], order=2)(a, b)
+@pytest.mark.parametrize("options", [OPTIONS["flattened"], OPTIONS["both"]], ids=["flattened", "both"])
+def test_per_task_forward_equals_the_reference_task_by_task(options):
+    """MAML's batched path: parameters with a leading task axis (some or all of them) and a batch of
+    demos give, task by task, the reference's actions and the reference's gradients (a per-task
+    parameter's gradient row b is task b's; a shared parameter's is the sum over tasks)."""
+    params, _, _, _ = tiny_problem(dataclasses.replace(TINY, **options))
+    rng = np.random.default_rng(10)
+    B = 3
+    images, states, actions = rng.random((B, 2, 8, 8, 3)), rng.standard_normal((B, 2, 3)), rng.standard_normal((B, 2, 2))
+    for adapted in (("conv0_w", "conv0_b"), tuple(params)):
+        p = {k: np.stack([v + 0.1 * rng.standard_normal(v.shape) for _ in range(B)]) if k in adapted else v
+             for k, v in params.items()}
+        task = [{k: v[b] if k in adapted else v for k, v in p.items()} for b in range(B)]
+        out = forward(p, images, states)
+        assert out.shape == (B, 2, 2)
+        for b in range(B):
+            np.testing.assert_allclose(out[b], forward_reference(task[b], images[b], states[b]), rtol=1e-10, atol=1e-12)
+        g = grad(squared_error(forward, images, states, actions))(p)
+        g_tasks = [grad(squared_error(forward_reference, images[b], states[b], actions[b]))(task[b]) for b in range(B)]
+        for k in params:
+            expected = np.stack([gt[k] for gt in g_tasks]) if k in adapted else sum(gt[k] for gt in g_tasks)
+            np.testing.assert_allclose(g[k], expected, rtol=1e-10, atol=1e-12, err_msg=k)
 
 
 def test_network_second_order_gradients_with_per_task_parameters():
@@ -133,32 +111,17 @@ def test_network_second_order_gradients_with_per_task_parameters():
     images, states, actions = rng.random((3, 2, 8, 8, 3)), rng.standard_normal((3, 2, 3)), rng.standard_normal((3, 2, 2))
     for adapted in (("conv0_w", "conv0_b"), tuple(params)):
         p = {k: np.stack([v + 0.1 * b for b in range(3)]) if k in adapted else v for k, v in params.items()}
-
-        def loss(p):
-            r = predict_tasks(p, images, states) - actions
-            return anp.sum(r * r)
-
-        check_grads(loss, modes=["rev"], order=2)(p)
+        check_grads(squared_error(predict_tasks, images, states, actions), modes=["rev"], order=2)(p)
 
 
 def test_network_second_order_gradients():
     params, images, states, actions = tiny_problem()
-
-    def loss(p):
-        r = predict(p, images, states) - actions
-        return anp.sum(r * r)
-
-    check_grads(loss, modes=["rev"], order=2)(params)
+    check_grads(squared_error(predict, images, states, actions), modes=["rev"], order=2)(params)
 
 
 def test_network_second_order_gradients_with_bias_transform():
     params, images, states, actions = tiny_problem(NetworkConfig(**{**TINY.__dict__, "bias_transform": 2}))
-
-    def loss(p):
-        r = predict(p, images, states) - actions
-        return anp.sum(r * r)
-
-    check_grads(loss, modes=["rev"], order=2)(params)
+    check_grads(squared_error(predict, images, states, actions), modes=["rev"], order=2)(params)
 
 
 @pytest.mark.parametrize("image_size, flat", [(32, 4 * 4 * 40), (64, 8 * 8 * 40)])
@@ -243,10 +206,7 @@ def record_float_dtypes(monkeypatch):
 
 def test_float32_stays_float32_through_second_order(monkeypatch):
     params, images, states, actions = tiny_problem(dtype=np.float32)
-
-    def loss(p):
-        r = predict(p, images, states) - actions
-        return anp.sum(r * r)  # (anp.mean here would promote: its VJP divides by a float64 count)
+    loss = squared_error(predict, images, states, actions)   # anp.sum: anp.mean's VJP would promote
 
     seen = record_float_dtypes(monkeypatch)
     g = grad(loss)(params)
@@ -320,17 +280,12 @@ def test_count_flops_by_hand():
     assert count_flops(NetworkConfig(), 1) == 2 * (conv_macs + 646 * 100 + 3 * 100 * 100 + 100 * 2)
 
 
-def test_feature_points_second_order_gradients_and_positions():
-    """The spatial soft-argmax option: exact second-order gradients, and a lone hot spot's
-    expected position is that spot's coordinates (x right, y down, in [-1, 1])."""
+def test_feature_points_second_order_gradients():
+    """The network with the spatial soft-argmax option (and a bias transformation): exact
+    second-order gradients through predict (the layer itself: tests/test_layers.py)."""
     cfg = NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,), feature_points=True, bias_transform=2)
     rng = np.random.default_rng(0)
     params = init_params(cfg, rng, dtype=np.float64)
     assert params["fp_temperature"].shape == (1,)
     images, states = rng.random((2, 8, 8, 3)), rng.normal(size=(2, 6))
     check_grads(lambda p: predict(p, images, states), modes=["rev"], order=2)(params)
-    x = np.zeros((1, 5, 5, 2))
-    x[0, 1, 3, 0] = 50.0                    # channel 0: a spike at row 1, column 3
-    points = spatial_soft_argmax(x, np.ones(1))
-    np.testing.assert_allclose(points[0, [0, 2]], [0.5, -0.5], atol=1e-6)   # (x, y) of channel 0
-    np.testing.assert_allclose(points[0, [1, 3]], [0.0, 0.0], atol=1e-12)   # flat channel 1: the centre

@@ -7,15 +7,14 @@ fails the test, naming the notebook and the cell; then the variables the noteboo
 checked: the expert's demo succeeded, the meta-gradient passed its finite-difference check, the
 meta-loss fell, and so on.
 """
-import ctypes
-import glob
 import json
-import os
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+from oneshot import host
 
 try:
     import matplotlib
@@ -64,37 +63,17 @@ def in_temporary_folder(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
 
 
-def _openblas():
-    """(get, set) of NumPy's bundled OpenBLAS thread count, or None where it cannot be found."""
-    folder = os.path.join(os.path.dirname(np.__file__), os.pardir, "numpy.libs")
-    for path in glob.glob(os.path.join(folder, "*openblas*")):
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for prefix, suffix in (("scipy_openblas", "64_"), ("scipy_openblas", ""), ("openblas", "")):
-            get, set_ = f"{prefix}_get_num_threads{suffix}", f"{prefix}_set_num_threads{suffix}"
-            if hasattr(lib, get) and hasattr(lib, set_):
-                return getattr(lib, get), getattr(lib, set_)
-    return None
-
-
 @pytest.fixture(autouse=True)
 def one_blas_thread():
     """Run the notebooks with one BLAS thread, then restore the count. When the cores are busy, OpenBLAS's
     spinning threads make small matrix products crawl: on the 2-core machine while two trainings ran,
-    notebook 3 took 36 s with 2 BLAS threads and 4.7 s with 1."""
-    blas = _openblas()
-    if blas is None:
-        yield
-        return
-    get, set_ = blas
-    before = get()
-    set_(1)
+    notebook 3 took 36 s with 2 BLAS threads and 4.7 s with 1. (A no-op where host cannot reach the BLAS.)"""
+    before = host.blas_threads(1)
     try:
         yield
     finally:
-        set_(before)
+        if before is not None:
+            host.blas_threads(before)
 
 
 def test_notebooks_are_committed_without_outputs():

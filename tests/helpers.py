@@ -1,0 +1,95 @@
+"""Helpers shared by the tests (tests/ is on sys.path under pytest's default import mode, so test files
+`from helpers import ...`). Each is an independent reference or a check, written here once:
+
+    mlp_loss, make_mlp, make_demo, make_tasks   a tiny tanh MLP, independent of oneshot/network.py
+    naive_conv2d                                'same' convolution as explicit loops over output pixels
+    squared_error                               the summed squared error of a network's actions
+    assert_batched_equals_loop                  oneshot.batched == oneshot.maml's per-task loop
+"""
+import autograd.numpy as anp
+import numpy as np
+import pytest
+
+from oneshot import batched, maml
+
+
+# ----- a tiny model: 2-layer tanh MLP with a summed squared-error loss (stands in for eq. 2) -----
+
+def mlp_loss(params, demo):
+    """demo = (x: (T, d_in), y: (T, d_out)); summed squared error of a 1-hidden-layer tanh MLP."""
+    x, y = demo
+    hidden = anp.tanh(x @ params["W1"] + params["b1"])
+    return anp.sum((hidden @ params["W2"] + params["b2"] - y) ** 2)
+
+
+def make_mlp(rng, d_in=3, d_hidden=5, d_out=2, dtype=np.float64):
+    params = {
+        "W1": rng.normal(0, 0.7, (d_in, d_hidden)),
+        "b1": rng.normal(0, 0.1, d_hidden),
+        "W2": rng.normal(0, 0.7, (d_hidden, d_out)),
+        "b2": rng.normal(0, 0.1, d_out),
+    }
+    return {k: v.astype(dtype) for k, v in params.items()}
+
+
+def make_demo(rng, T=6, d_in=3, d_out=2, dtype=np.float64):
+    return rng.normal(size=(T, d_in)).astype(dtype), rng.normal(size=(T, d_out)).astype(dtype)
+
+
+def make_tasks(rng, n_tasks=3, **kw):
+    return [(make_demo(rng, **kw), make_demo(rng, **kw)) for _ in range(n_tasks)]
+
+
+# ----- the network -----
+
+def naive_conv2d(x, w, b, stride):
+    """Reference 'same' convolution with explicit loops over output pixels (independent of im2col).
+
+    x: (N, H, W, C_in), w: (k, k, C_in, C_out), b: (C_out,) -> (N, H_out, W_out, C_out) float64.
+    """
+    n, h, width, c_in = x.shape
+    k, _, _, c_out = w.shape
+    p = k // 2
+    h_out, w_out = (h + 2 * p - k) // stride + 1, (width + 2 * p - k) // stride + 1
+    out = np.zeros((n, h_out, w_out, c_out))
+    for i in range(h_out):
+        for j in range(w_out):
+            for dy in range(k):
+                for dx in range(k):
+                    y, xx = i * stride + dy - p, j * stride + dx - p
+                    if 0 <= y < h and 0 <= xx < width:
+                        out[:, i, j, :] += x[:, y, xx, :] @ w[dy, dx]
+    return out + b
+
+
+def squared_error(predict_fn, images, states, actions):
+    """p -> sum over frames of ||predict_fn(p, images, states) - actions||^2 (eq. 2 for one demo).
+
+    anp.sum, not anp.mean: mean's VJP divides by a float64 count and would promote float32."""
+    def loss(p):
+        r = predict_fn(p, images, states) - actions
+        return anp.sum(r * r)
+    return loss
+
+
+# ----- MAML: the batched training path against the plain per-task loop -----
+
+def _task(demos, b):
+    """Task b of a batched demo (a tuple of arrays with a leading task axis, or one such array)."""
+    return tuple(a[b] for a in demos) if isinstance(demos, (tuple, list)) else demos[b]
+
+
+def assert_batched_equals_loop(params, adapt, evaluate, loss, alpha, steps, **kwargs):
+    """`batched.meta_gradient_batched` on the batched demos equals `maml.meta_gradient` over the
+    per-task (adapt, evaluate) pairs: the value (rel 1e-10) and the gradient of every parameter
+    (rtol 1e-8, atol 1e-12). loss serves both: per task, and summed over a leading task axis.
+    kwargs: first_order, only. Returns ((loop value, loop grads), (batched value, batched grads))."""
+    B = len(adapt[0]) if isinstance(adapt, (tuple, list)) else len(adapt)
+    tasks = [(_task(adapt, b), _task(evaluate, b)) for b in range(B)]
+    v_loop, g_loop = maml.meta_gradient(params, tasks, loss, alpha, steps, **kwargs)
+    v_batched, g_batched = batched.meta_gradient_batched(params, adapt, evaluate, loss, alpha, steps, **kwargs)
+    assert v_batched == pytest.approx(v_loop, rel=1e-10)
+    assert g_batched.keys() == g_loop.keys() == params.keys()
+    for k in params:
+        np.testing.assert_allclose(g_batched[k], g_loop[k], rtol=1e-8, atol=1e-12, err_msg=k)
+    return (v_loop, g_loop), (v_batched, g_batched)
