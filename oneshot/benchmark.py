@@ -23,8 +23,8 @@ import numpy as np
 from autograd import grad
 from tqdm import tqdm
 
-from oneshot import batched, collect, data, expert, host, imitation, layers, network, optim, palette, shards, train
-from oneshot.config import INNER_PARAMS, PROFILES, inner_only
+from oneshot import batched, collect, data, expert, host, imitation, layers, methods, network, optim, palette, shards
+from oneshot.config import INNER_PARAMS, METHODS, PROFILES, inner_only
 from oneshot.evaluate import wilson_interval
 from oneshot.world import ReachWorld, WorldConfig
 
@@ -48,9 +48,14 @@ def meta_gradient_flops(cfg, net_cfg, T, tasks):
     3 (3 s + 1) forward passes per task for s inner steps: each inner step records a forward and a
     backward pass (~3 forward passes), the outer loss one more, and the meta-gradient's backward pass
     costs about twice the recorded forward graph. First order: the inner steps are not recorded, so
-    3 s + 3 (inner forward+backward, outer forward+backward). Matrix products only (`count_flops`).
+    3 s + 3 (inner forward+backward, outer forward+backward). The baselines: one forward and backward
+    pass (3) on the evaluate demo, the LSTM's trunk the same again on the adapt demo. Matrix products
+    only (`count_flops`; the LSTM's own products are not counted).
     """
-    passes = 3 * cfg.inner_steps + 3 if cfg.first_order else 3 * (3 * cfg.inner_steps + 1)
+    if cfg.method == "mil":
+        passes = 3 * cfg.inner_steps + 3 if cfg.first_order else 3 * (3 * cfg.inner_steps + 1)
+    else:
+        passes = {"contextual": 3, "lstm": 6}[cfg.method]
     return tasks * passes * network.count_flops(net_cfg, T)
 
 
@@ -58,32 +63,33 @@ def bench_setup(profile, image_size, **overrides):
     """(cfg, net_cfg, params, rng) for timing a profile (with overridden fields) on synthetic data."""
     cfg = dataclasses.replace(PROFILES[profile], **overrides)
     rng = np.random.default_rng(0)
-    net_cfg = network.NetworkConfig(image_size=image_size, bias_transform=cfg.bias_transform,
-                                    feature_points=cfg.feature_points)
-    return cfg, net_cfg, train.initial_params(cfg, net_cfg, rng), rng
+    net_cfg = methods.network_config(cfg, image_size)
+    return cfg, net_cfg, methods.init_params(cfg, net_cfg, rng), rng
 
 
 def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, **overrides):
-    """Median seconds per second-order meta-iteration on synthetic data, and GFLOP/s
-    (`meta_gradient_flops`)."""
+    """Median seconds per meta-iteration (the gradient of one meta-batch: for mil second order, over
+    cfg.shards processes) on synthetic data, and GFLOP/s (`meta_gradient_flops`)."""
     host.tune_malloc()
     cfg, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
+    if cfg.method == "random":
+        raise ValueError("the random policy has no meta-iteration to time")
     B = cfg.meta_batch
-    times, pool = [], shards.make_pool(cfg.shards)
-    settings = (cfg.alpha, cfg.inner_steps, cfg.first_order, inner_only(cfg))
+    times, pool = [], shards.make_pool(cfg.shards if cfg.method == "mil" else 1)
     try:
         for _ in range(iterations + 2):
             a, e = synthetic_demos(rng, B, T, image_size), synthetic_demos(rng, B, T, image_size)
             t = time.perf_counter()
-            shards.meta_gradient(params, a, e, settings, cfg.shards, pool)
+            methods.meta_gradient(cfg, params, a, e, pool)
             times.append(time.perf_counter() - t)
     finally:
         if pool is not None:
             pool.close()
     s = float(np.median(times[2:]))
     flops = meta_gradient_flops(cfg, net_cfg, T, B)
-    return {"profile": profile, "meta_batch": B, "inner_steps": cfg.inner_steps, "inner_params": cfg.inner_params,
-            "T": T, "image_size": image_size, "first_order": cfg.first_order, "shards": cfg.shards,
+    return {"profile": profile, "method": cfg.method, "meta_batch": B, "inner_steps": cfg.inner_steps,
+            "inner_params": cfg.inner_params, "T": T, "image_size": image_size, "first_order": cfg.first_order,
+            "shards": cfg.shards if cfg.method == "mil" else 1,
             "seconds_per_iteration": round(s, 4),
             "gflop_per_iteration": round(flops / 1e9, 2), "gflop_per_second": round(flops / 1e9 / s, 1)}
 
@@ -155,9 +161,10 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
     def loss(p, im, st, act):
         return imitation.imitation_loss(p, (im, st, act)) / len(act)     # eq. (2), per frame
 
-    def seen(im, st, scene):
-        """What the network sees in a trial's scene: the image and state, and the privileged input."""
-        return inputs(im, st, scene.target_position.astype(np.float32)[None], rgb[scene.target_colour][None])
+    def policy(im, st, scene):
+        """The network given a trial scene's target position or colour (`imitation.rollout`)."""
+        im, st = inputs(im, st, scene.target_position.astype(np.float32)[None], rgb[scene.target_colour][None])
+        return network.forward(params, im, st)
 
     g, adam = grad(loss), optim.adam_init(params)
     colours = rgb[ds["task_colours"].astype(int)]
@@ -167,7 +174,7 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
                         np.repeat(target[ti, ki], T, 0), np.repeat(colours[ti], T, 0))
         params, adam = optim.adam_step(params, g(params, im, st, actions[ti, ki].reshape(-1, 2)), adam, lr)
     world = ReachWorld(dataclasses.replace(world_cfg, split="heldout"))
-    wins = sum(imitation.rollout(params, world, imitation.trial_seed(0, 0, j), inputs=seen)["success"]
+    wins = sum(imitation.rollout(policy, world, imitation.trial_seed(0, 0, j))["success"]
                for j in tqdm(range(trials), desc="held-out trials"))
     return {"given": given, "feature_points": feature_points, "steps": steps, "batch_demos": batch,
             "seed": seed, "heldout_trials": trials, "heldout_success": wins / trials,
@@ -189,6 +196,8 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **ove
     host.tune_malloc()
     host.blas_threads(1)
     cfg, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
+    if cfg.method != "mil":
+        raise ValueError("--breakdown times MIL's meta-gradient on frame shards; drop --method")
     batch = [synthetic_demos(rng, cfg.meta_batch, T, image_size) for _ in range(2)]
     adapt, evaluate = (shards.split_frames(demos, cfg.shards)[-1] for demos in batch)  # the training process's part
     B, frames = adapt[0].shape[:2]
@@ -258,6 +267,9 @@ def main(argv=None):
     m = sub.add_parser("maml", help="seconds per second-order meta-iteration")
     m.add_argument("--iterations", type=int, default=20)
     m.add_argument("--profile", choices=sorted(PROFILES), default="default")
+    m.add_argument("--method", choices=METHODS[:3], default=None,
+                   help="time a baseline's iteration (same meta-batch, trunk and widths) instead of MIL's")
+    m.add_argument("--lstm-units", type=int, default=None, help="override the LSTM baseline's width")
     m.add_argument("--first-order", action="store_true", help="time the first-order approximation")
     m.add_argument("--inner-steps", type=int, default=None, help="override the profile's inner steps")
     m.add_argument("--inner-params", choices=sorted(INNER_PARAMS), default=None,
@@ -286,7 +298,8 @@ def main(argv=None):
     else:
         overrides = {k: v for k, v in (("first_order", args.first_order or None), ("inner_steps", args.inner_steps),
                                        ("inner_params", args.inner_params), ("meta_batch", args.meta_batch),
-                                       ("shards", args.shards)) if v is not None}
+                                       ("shards", args.shards), ("method", args.method),
+                                       ("lstm_units", args.lstm_units)) if v is not None}
         bench = bench_breakdown if args.breakdown else bench_meta_iteration
         result = bench(args.iterations, args.profile, **overrides)
     main_mb, worker_mb = host.peak_memory_mb()

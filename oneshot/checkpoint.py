@@ -55,13 +55,18 @@ def load(path):
             raise ValueError(f"{path!r}: {name!r} contains NaN or inf; use an earlier checkpoint")
     rng = np.random.default_rng()
     rng.bit_generator.state = meta["rng"]
-    network = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["network"].items()}
+    network = _tuples(meta["network"])
     if network.pop("stride", STRIDE) != STRIDE:      # older checkpoints record the (fixed) stride
         raise ValueError(f"{path!r} was trained with convolution stride {meta['network']['stride']}; "
                          f"this oneshot's network has stride {STRIDE}")
     return {"params": params, "ema": ema, "adam": optim.state_from_arrays(arrays),
-            "iteration": meta["iteration"], "rng": rng, "config": TrainConfig(**meta["config"]),
+            "iteration": meta["iteration"], "rng": rng, "config": TrainConfig(**_tuples(meta["config"])),
             "network": NetworkConfig(**network)}
+
+
+def _tuples(fields):
+    """A config dict read from JSON, its lists back to the tuples the dataclass holds."""
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}
 
 
 def policy_params(ckpt, raw=False):

@@ -42,6 +42,15 @@ class TrainConfig:
     checkpoint_every: int = 100
     shards: int = 2                          # processes sharing each meta-gradient, each on its block of
                                              # every demo's frames (`oneshot.shards`; results depend on it)
+    method: str = "mil"                      # "mil" (MAML, eq. 1) or a baseline of Section IV: "contextual",
+                                             # "lstm", "random" (`oneshot.methods`, `oneshot.baselines`)
+    lstm_units: int = 100                    # the LSTM baseline's width (the paper's: 512)
+    random_stds: tuple = (0.1, 0.25, 0.5, 1.0, 2.0)   # the random baseline's torque std, in units of the
+                                             # torque bound (1.0 = the bound); the best on the
+                                             # meta-training colours is kept
+    palette: str = "hues"                    # colours when collecting: "hues" (48) or "grid" (`oneshot.palette`)
+    tasks: int = 0                           # meta-train on the first `tasks` colours of train_data (0: all)
+    demos: int = 0                           # ... and the first `demos` demos of each (0: all)
 
 
 # MIL's meta-learning settings (TrainConfig's defaults), 2000 iterations.
@@ -67,6 +76,8 @@ PROFILES = {
                         checkpoint_every=5, shards=1),
 }
 
+
+METHODS = ("mil", "contextual", "lstm", "random")
 
 # TrainConfig.inner_params -> `maml.inner_update`'s `only`: which parameters eq. (1) adapts.
 INNER_PARAMS = {"all": None, "conv": ("conv",), "conv0": ("conv0_",)}

@@ -11,8 +11,8 @@ import json
 import math
 import sys
 
-from oneshot import checkpoint, data, imitation, maml
-from oneshot.config import inner_only
+from oneshot import checkpoint, data, imitation, maml, methods, palette
+from oneshot.config import METHODS, inner_only
 
 
 def wilson_interval(successes, trials, z=1.96):
@@ -26,11 +26,11 @@ def wilson_interval(successes, trials, z=1.96):
 
 
 def colour_breakdown(result, trials_per_colour, metadata):
-    """One line of per-colour successes, e.g. "0 deg 10/10, 30 deg 8/10, ...", in hue order: which
-    new colours are hard (on our palette, the hues half-way between the primaries and secondaries;
-    docs/results.md, "Which colours fail")."""
-    size = metadata["world"]["palette"]["size"]
-    return ", ".join(f"{360 * c / size:g} deg {round(rate * trials_per_colour)}/{trials_per_colour}"
+    """One line of per-colour successes, e.g. "hue 0 deg 10/10; hue 30 deg 8/10; ...", in colour order:
+    which new colours are hard (on the default palette, the hues half-way between the primaries and
+    secondaries; docs/results.md, "Which colours fail")."""
+    cfg = data.world_config(metadata).palette
+    return "; ".join(f"{palette.colour_name(c, cfg)} {round(rate * trials_per_colour)}/{trials_per_colour}"
                      for c, rate in sorted(result["per_colour"].items()))
 
 
@@ -74,10 +74,17 @@ def main(argv=None):
                    help="meta-test with this inner step size instead of the one the checkpoint was trained with")
     p.add_argument("--inner-steps", type=int, default=None,
                    help="meta-test with this many inner steps instead of the trained number")
+    p.add_argument("--method", choices=METHODS, default=None,
+                   help="the method the checkpoint must have been trained with (default: whatever it was)")
     p.add_argument("--json", default=None, help="also write the results to this JSON file")
     args = p.parse_args(argv)
     ckpt = checkpoint.load(args.checkpoint)
     params, cfg = checkpoint.policy_params(ckpt, args.raw), ckpt["config"]
+    if args.method not in (None, cfg.method):
+        p.error(f"{args.checkpoint} holds a {cfg.method!r} policy, not {args.method!r}; train one with "
+                f"`python -m oneshot.train --method {args.method}`")
+    if args.unadapted and cfg.method != "mil":
+        p.error(f"--unadapted compares MIL's policy before and after eq. (1); {cfg.method!r} does not adapt")
     cfg = dataclasses.replace(cfg, **{k: v for k, v in (("alpha", args.alpha), ("inner_steps", args.inner_steps))
                                       if v is not None})
     try:
@@ -85,26 +92,29 @@ def main(argv=None):
     except ValueError as e:
         p.error(f"{e} (--alpha >= 0, --inner-steps >= 0)")
     only = inner_only(cfg)
+    mil = cfg.method == "mil"
     results = {}
     for name, path in (("heldout", args.heldout), ("train", args.train)):
         if not path:
             continue
         dataset = data.load(path)
-        r = imitation.one_shot_success(params, dataset, args.trials, cfg.alpha, cfg.inner_steps, args.seed, only=only)
+        condition = methods.conditioner(cfg, params, seed=args.seed)
+        r = imitation.one_shot_success(condition, dataset, args.trials, args.seed)
         r["ci95"] = lo, hi = wilson_interval(r["successes"], r["trials"])
         print(f"{name} colours: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
               f"95% CI [{lo:.3f}, {hi:.3f}]; failures: {r['failures']['near_miss']} near misses (closest "
               f"to the target, but not within reach), {r['failures']['wrong_object']} at a distractor")
         results[name] = r
         if name == "heldout":
-            print(f"heldout colours, by hue: {colour_breakdown(r, args.trials, dataset['metadata'])}")
+            print(f"heldout colours, by colour: {colour_breakdown(r, args.trials, dataset['metadata'])}")
+        if name == "heldout" and mil:
             g = adaptation_gain(params, dataset, cfg.alpha, cfg.inner_steps, only=only)
             print(f"heldout colours: eq. (2) loss on a second demo {g['before']:.3f} before adapting on "
                   f"one demo, {g['after']:.3f} after ({g['pairs']} pairs)")
             results["adaptation_gain"] = g
         if args.unadapted and name == "heldout":
-            u = imitation.one_shot_success(params, dataset, args.trials, cfg.alpha, cfg.inner_steps, args.seed,
-                                           adapt_first=False)
+            u = imitation.one_shot_success(methods.conditioner(cfg, params, adapt=False), dataset, args.trials,
+                                           args.seed)
             u["ci95"] = lo, hi = wilson_interval(u["successes"], u["trials"])
             print(f"heldout colours, unadapted policy: success {u['rate']:.3f} ({u['successes']}/{u['trials']}), "
                   f"95% CI [{lo:.3f}, {hi:.3f}]")

@@ -8,8 +8,6 @@ run the adapted policy in the world, in a new scene (new positions) with the sam
 Units: the network sees images in [0, 1], states divided by STATE_SCALE and predicts torques divided
 by the torque bound, so every input and output is of order one.
 """
-import functools
-
 import autograd.numpy as anp
 import numpy as np
 from tqdm import tqdm
@@ -68,31 +66,31 @@ def adapt(params, demo, alpha=0.001, steps=3, only=None):
     return maml.inner_update(params, demo, imitation_loss, alpha, steps, only=only)
 
 
-def act(params, obs, max_torque, inputs=None):
-    """The policy's torques (2,) N m for one observation of the world. inputs: None, or a function
-    (image (1, H, W, 3), state (1, 6)) -> (image, state) that changes what the network sees."""
+def act(policy, obs, max_torque, scene=None):
+    """The policy's torques (2,) N m for one observation of the world.
+
+    policy: a parameter dict (the network acts: `forward(params, image, state)`), or a function
+    policy(image (1, H, W, 3), state (1, 6), scene) -> (1, 2) in network units (the baselines, or a
+    network given more than it sees: `benchmark privileged`). scene: the episode's Scene, for it.
+    """
     image = images_to_float(obs["image"])[None]
     state = (observation_state(obs) / STATE_SCALE)[None]
-    if inputs is not None:
-        image, state = inputs(image, state)
-    return np.asarray(forward(params, image, state))[0].astype(np.float64) * max_torque
+    action = policy(image, state, scene) if callable(policy) else forward(policy, image, state)
+    return np.asarray(action)[0].astype(np.float64) * max_torque
 
 
-def rollout(params, world, seed, target_colour=None, inputs=None):
-    """Run the policy for one episode in a new scene of `target_colour` (None: a random colour of the
-    world's split, drawn from `seed`). inputs: None, or inputs(image, state, scene) -> (image, state),
-    which changes what the network sees in that scene (`benchmark privileged` appends the target's
-    position or colour).
+def rollout(policy, world, seed, target_colour=None):
+    """Run a policy (as in `act`) for one episode in a new scene of `target_colour` (None: a random
+    colour of the world's split, drawn from `seed`).
 
     Returns {"success": bool, "images": (T, H, W, 3) uint8, "end_effector": (T, 2), "scene": Scene}.
     """
     options = {} if target_colour is None else {"target_colour": int(target_colour)}
     obs, info = world.reset(seed=seed, options=options)
-    seen = None if inputs is None else functools.partial(inputs, scene=info["scene"])
     images, ee = [], []
     for _ in range(world.config.horizon):
         images.append(obs["image"])
-        obs, _, _, _, info = world.step(act(params, obs, world.config.arm.max_torque, seen))
+        obs, _, _, _, info = world.step(act(policy, obs, world.config.arm.max_torque, info["scene"]))
         ee.append(obs["end_effector"])
     return {"success": is_success(ee, info["target_position"], world.config.success_radius),
             "images": np.stack(images), "end_effector": np.stack(ee), "scene": info["scene"]}
@@ -115,12 +113,14 @@ def trial_seed(seed, task, trial):
     return TRIAL_SEED_OFFSET + seed * 100_000 + task * 1000 + trial
 
 
-def one_shot_success(params, dataset, trials_per_colour=10, alpha=0.001, steps=3, seed=0,
-                     adapt_first=True, progress=True, only=None):
+def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=True):
     """Meta-test over a dataset (Section III-B, scored as in Section IV): for each task (colour) of
-    `dataset`, `trials_per_colour` trials, trial j adapting on demo j % K of that task and acting in a
-    fresh scene (`trial_seed`). adapt_first=False runs the unadapted policy (does adapting matter?).
+    `dataset`, `trials_per_colour` trials; trial j conditions the policy on demo j % K of that task
+    and runs it in a fresh scene of that colour (`trial_seed`).
 
+    condition(demo) -> policy: what one demonstration (network units) makes of the policy, e.g.
+    `lambda demo: adapt(params, demo, alpha, steps, only)` for MIL (eq. 1), `lambda demo: params` for
+    the unadapted policy, a baseline's conditioned policy (`methods.conditioner`).
     Returns {"successes", "trials", "rate", "per_colour": {colour: rate}, "failures": {"near_miss": n,
     "wrong_object": m}}: a failed trial is a near miss when the end effector's closest object over the
     final fifth was the target, else it went to a distractor.
@@ -137,9 +137,7 @@ def one_shot_success(params, dataset, trials_per_colour=10, alpha=0.001, steps=3
     for i in range(n):
         colour, won = int(dataset["task_colours"][i]), 0
         for j in range(trials_per_colour):
-            demo = tuple(a[i, j % k] for a in demos)
-            policy = adapt(params, demo, alpha, steps, only) if adapt_first else params
-            trial = rollout(policy, world, trial_seed(seed, i, j), colour)
+            trial = rollout(condition(tuple(a[i, j % k] for a in demos)), world, trial_seed(seed, i, j), colour)
             won += trial["success"]
             if not trial["success"]:
                 closest, _ = closest_object(trial["end_effector"], trial["scene"].positions)

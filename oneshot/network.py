@@ -43,6 +43,8 @@ class NetworkConfig:
     feature_points: if True, the last convolution's channels become (x, y) feature points by a
                     spatial soft-argmax (`spatial_soft_argmax`), 2 per channel, instead of being
                     flattened (an option of MIL's released code; the default profile uses it).
+    image_channels: channels of the input image: 3 (RGB), or 6 for the contextual baseline, which
+                    stacks the demonstration's final image on the current one (`oneshot.baselines`).
     """
 
     image_size: int = 32
@@ -53,6 +55,7 @@ class NetworkConfig:
     action_dim: int = 2
     bias_transform: int = 0
     feature_points: bool = False
+    image_channels: int = 3
 
     def __post_init__(self):
         if self.kernel % 2 != 1:
@@ -84,7 +87,7 @@ def param_shapes(config):
     fc{i}_w: (n_in, n_out)                     fc{i}_b: (n_out,)
     out_w: (hidden[-1], action_dim)            out_b: (action_dim,)
     """
-    shapes, c_in = {}, 3
+    shapes, c_in = {}, config.image_channels
     for i, c_out in enumerate(config.channels):
         shapes[f"conv{i}_w"] = (config.kernel, config.kernel, c_in, c_out)
         shapes[f"conv{i}_b"] = (c_out,)
@@ -192,22 +195,32 @@ def forward(params, images, states):
     images: (..., T, H, W, 3) float in [0, 1], states: (..., T, state_dim) -> (..., T, action_dim)
     in network units, where the optional leading task axis matches that of any per-task parameter.
     """
+    parts = [trunk(params, images)]
+    if "bias_transform" in params:  # the same learned vector appended to every frame: (T, bias_transform)
+        parts.append(np.ones((*states.shape[:-1], 1), states.dtype) * per_frame(params["bias_transform"]))
+    parts.append(states)
+    return head(params, concat_last(*parts))  # fc0's input: (T, n_in)
+
+
+def trunk(params, images):
+    """The convolutional trunk: image features per frame. images (..., T, H, W, C) -> (..., T, F):
+    F = 2 * 40 feature points (with "fp_temperature" in params) or H/8 * W/8 * 40 flattened."""
     x, i = images, 0
     while f"conv{i}_w" in params:  # (T, H, W, 3) -> (T, H/2, W/2, 40) -> ... -> (T, H/8, W/8, 40)
         x = relu(conv2d(x, params[f"conv{i}_w"], params[f"conv{i}_b"], STRIDE))
         i += 1
     if "fp_temperature" in params:  # feature points: (T, 2 * 40) expected (x, y) of each channel
-        parts = [spatial_soft_argmax(x, params["fp_temperature"])]
-    else:
-        parts = [anp.reshape(x, (*states.shape[:-1], -1))]  # (T, H/8 * W/8 * 40) image features
-    if "bias_transform" in params:  # the same learned vector appended to every frame: (T, bias_transform)
-        parts.append(np.ones((*states.shape[:-1], 1), states.dtype) * per_frame(params["bias_transform"]))
-    parts.append(states)
-    h, i = concat_last(*parts), 0  # (T, n_in of fc0)
-    while f"fc{i}_w" in params:  # 4 x (T, 100)
+        return spatial_soft_argmax(x, params["fp_temperature"])
+    return anp.reshape(x, (*x.shape[:-3], -1))  # (T, H/8 * W/8 * 40) image features
+
+
+def head(params, h):
+    """The fully connected layers: (..., T, n_in) -> 4 x (..., T, 100) with ReLU -> (..., T, action_dim)."""
+    i = 0
+    while f"fc{i}_w" in params:
         h = relu(add_bias(matmul(h, params[f"fc{i}_w"]), params[f"fc{i}_b"]))
         i += 1
-    return add_bias(matmul(h, params["out_w"]), params["out_b"])  # (T, action_dim)
+    return add_bias(matmul(h, params["out_w"]), params["out_b"])
 
 
 def _check_inputs(params, images, states, task_axes):

@@ -1,9 +1,40 @@
 """Colours, and so tasks: a task is "reach the object of colour c" (paper Section IV).
 
-The palette is `size` fully saturated hues, evenly spaced around the colour wheel. Every
-`heldout_every`-th hue is held out: it never appears in meta-training, not even as a distractor, so
-at meta-test the policy meets a colour it has never seen. Within one scene, any two objects differ
-in hue by at least `min_separation_deg`, so the colours are clearly distinguishable even at 32x32.
+Meta-learning needs many tasks: MIL meta-trained its simulated reaching on 750 to 1650 colours, while
+the default palette here has 36. So there are two palettes, chosen by `PaletteConfig.mode`:
+
+- "hues" (the default, and the shipped policy's): 48 fully saturated hues, 7.5 degrees apart. Every
+  4th hue (0, 30, ..., 330 degrees) is held out: 36 meta-training and 12 held-out colours. Held-out
+  colours are 7.5 degrees of hue from the nearest training colour.
+- "grid": hue x saturation x value. 72 hues 5 degrees apart x saturations (1.0, 0.75, 0.5) x values
+  (1.0, 0.8, 0.6) = 648 colours. The held-out hues are again every 30 degrees (0, 30, ..., 330, the
+  same 12 hues as "hues" mode), with all 9 of their saturation/value variants: 108 held-out colours.
+  A guard band (`guard` = 1 hue) either side of each held-out hue belongs to NEITHER split, so every
+  held-out colour is at least 10 degrees of hue from every training colour. That leaves 36 training
+  hues x 9 = 324 meta-training colours (and 216 unused guard colours).
+
+Minimum distances, RGB 0-255, Euclidean, over every pair (`tests/test_palette.py` checks the grid's):
+
+                                                   grid    hues
+    any held-out colour to any training colour     12.0    31.0   (grid: hues 10 deg apart, sat 0.5, val 0.6)
+    any two training colours                        6.0    32.0   (grid: hues 5 deg apart, sat 0.5, val 0.6)
+    training colours that can share a scene        56.8   185.7   (>= 60 deg apart in hue)
+    any colour to the black background              153     255
+    any colour to the white arm                     127     255   (grid: pale yellow, 255 255 128)
+
+The small margins are all at the dull corner (saturation 0.5, value 0.6: chroma 0.3), where 5 degrees
+of hue moves one channel by about 6 units. The centre pixel of a disc keeps its exact colour at 32x32
+(`oneshot.render` antialiases only the rim), so even these are visible to the network. Other levels buy
+little: values (1.0, 0.85, 0.7) raise the held-out margin to 14, saturations (1.0, 0.8, 0.55) with
+those values to 16 (and the training minimum to 8), so the grid keeps its evenly spaced levels.
+
+Both modes: held-out colours never appear in meta-training, not even as distractors, so at meta-test
+the policy meets colours it has never seen; within one scene any two objects differ in HUE by at least
+`min_separation_deg` (60), so distractors are clearly different colours even at low saturation.
+
+Colour indices are plain ints 0 .. n_colours(cfg) - 1, hue-major: index = hue * per_hue + variant, with
+variant = saturation level * len(values) + value level. In "hues" mode per_hue is 1, so an index is its
+hue, and every function returns exactly what it did before "grid" mode existed.
 """
 import colorsys
 from dataclasses import dataclass
@@ -11,42 +42,114 @@ from dataclasses import dataclass
 import numpy as np
 
 SPLITS = ("train", "heldout")
+MODES = ("hues", "grid")
+
+# The defaults each mode gives the fields left at None (see PaletteConfig).
+_DEFAULTS = {
+    "hues": {"size": 48, "heldout_every": 4, "saturations": (1.0,), "values": (1.0,), "guard": 0},
+    "grid": {"size": 72, "heldout_every": 6, "saturations": (1.0, 0.75, 0.5), "values": (1.0, 0.8, 0.6),
+             "guard": 1},
+}
 
 
 @dataclass(frozen=True)
 class PaletteConfig:
-    size: int = 48                   # hues, 7.5 degrees apart
-    heldout_every: int = 4           # every 4th hue is held out: 36 training, 12 held-out colours
+    """The colours. Fields left at None take their mode's default (_DEFAULTS), so PaletteConfig() is
+    the 48-hue palette and PaletteConfig(mode="grid") the 648-colour grid; the saved config (and so a
+    dataset's metadata) holds the resolved numbers. Build a grid with PaletteConfig(mode="grid"), not
+    dataclasses.replace(PaletteConfig(), mode="grid"), which keeps the hues palette's numbers."""
+    size: int = None                  # hues around the wheel, 360 / size degrees apart (48; grid 72)
+    heldout_every: int = None         # every n-th hue is held out, with all its variants (4; grid 6)
     min_separation_deg: float = 60.0  # minimum hue difference between objects of one scene
+    mode: str = "hues"                # "hues" or "grid" (the module docstring)
+    saturations: tuple = None         # saturation levels of every hue ((1.0,); grid (1.0, 0.75, 0.5))
+    values: tuple = None              # value (brightness) levels ((1.0,); grid (1.0, 0.8, 0.6))
+    guard: int = None                 # hues either side of a held-out hue used by neither split (0; grid 1)
+
+    def __post_init__(self):
+        if self.mode not in MODES:
+            raise ValueError(f"unknown palette mode {self.mode!r}; use one of {MODES}")
+        for name, default in _DEFAULTS[self.mode].items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, default)
+        for name in ("saturations", "values"):     # tuples of floats, also when read back from JSON lists
+            levels = tuple(float(x) for x in getattr(self, name))
+            if not levels or not all(0 < x <= 1 for x in levels):
+                raise ValueError(f"palette {name} must be a non-empty sequence in (0, 1]; got {levels}")
+            object.__setattr__(self, name, levels)
+        if self.size < 1 or self.heldout_every < 1 or self.guard < 0:
+            raise ValueError(f"palette needs size >= 1, heldout_every >= 1 and guard >= 0; "
+                             f"got {self.size}, {self.heldout_every}, {self.guard}")
+        if self.guard > 0 and not np.any(hue_steps_to_heldout(self) > self.guard):
+            raise ValueError(f"guard {self.guard} leaves no training hue between held-out hues "
+                             f"{self.heldout_every} apart; lower guard or raise heldout_every")
+
+
+def per_hue(cfg=PaletteConfig()):
+    """Colours per hue: len(saturations) * len(values) (1 in "hues" mode, 9 in the default grid)."""
+    return len(cfg.saturations) * len(cfg.values)
+
+
+def n_colours(cfg=PaletteConfig()):
+    """How many colours the palette has (48; the default grid 648). Indices run 0 .. n_colours - 1."""
+    return cfg.size * per_hue(cfg)
+
+
+def colour_hue(i, cfg=PaletteConfig()):
+    """The hue column (0 .. size - 1) of palette index i (broadcasts); its angle is 360 hue / size deg."""
+    return np.asarray(i) // per_hue(cfg)
 
 
 def palette_rgb(cfg=PaletteConfig()):
-    """All palette colours. Returns (size, 3) uint8; row i is hue 360 i / size degrees."""
-    rgb = [colorsys.hsv_to_rgb(i / cfg.size, 1.0, 1.0) for i in range(cfg.size)]
+    """All palette colours. Returns (n_colours, 3) uint8; row i is hue 360 (i // per_hue) / size
+    degrees at the (i % per_hue)-th (saturation, value) pair, saturation-major."""
+    rgb = [colorsys.hsv_to_rgb(h / cfg.size, s, v)
+           for h in range(cfg.size) for s in cfg.saturations for v in cfg.values]
     return np.round(np.array(rgb) * 255).astype(np.uint8)
+
+
+def hue_steps_to_heldout(cfg=PaletteConfig()):
+    """(size,) int: how many hue steps each hue is from the nearest held-out hue, around the wheel
+    (0: held out; 1 .. guard: the guard band, in neither split; more: a training hue)."""
+    hues = np.arange(cfg.size)
+    held = hues[hues % cfg.heldout_every == 0]
+    k = np.abs(hues[:, None] - held[None]) % cfg.size           # (size, held-out hues)
+    return np.minimum(k, cfg.size - k).min(axis=1)
 
 
 def split_colours(split, cfg=PaletteConfig()):
     """Palette indices of a split. split: "train" or "heldout" -> (n,) int, sorted."""
     if split not in SPLITS:
         raise ValueError(f"unknown colour split {split!r}; use one of {SPLITS}")
-    idx = np.arange(cfg.size)
-    heldout = idx % cfg.heldout_every == 0
-    return idx[heldout] if split == "heldout" else idx[~heldout]
+    idx = np.arange(n_colours(cfg))
+    steps = hue_steps_to_heldout(cfg)[colour_hue(idx, cfg)]
+    return idx[steps == 0] if split == "heldout" else idx[steps > cfg.guard]
 
 
 def hue_distance_deg(i, j, cfg=PaletteConfig()):
     """Angular distance in degrees between the hues of palette indices i and j (broadcasts)."""
-    k = np.abs(np.asarray(i) - np.asarray(j)) % cfg.size
+    k = np.abs(colour_hue(i, cfg) - colour_hue(j, cfg)) % cfg.size
     return np.minimum(k, cfg.size - k) * 360.0 / cfg.size
+
+
+def colour_name(i, cfg=PaletteConfig()):
+    """A short name for pictures and tables: "hue 30 deg"; in grid mode "hue 30 deg, sat 0.75, val 0.8"."""
+    if not 0 <= i < n_colours(cfg):
+        raise ValueError(f"colour {i!r} is not a palette index in [0, {n_colours(cfg)})")
+    hue, variant = divmod(int(i), per_hue(cfg))
+    name = f"hue {360 * hue / cfg.size:g} deg"
+    if cfg.mode == "hues":
+        return name
+    s, v = divmod(variant, len(cfg.values))
+    return f"{name}, sat {cfg.saturations[s]:g}, val {cfg.values[v]:g}"
 
 
 def check_colour(colour, split, cfg=PaletteConfig()):
     """Raise ValueError unless `colour` is a palette index belonging to `split`."""
     allowed = split_colours(split, cfg)
     if not (np.issubdtype(type(colour), np.integer) or isinstance(colour, int)) or colour not in allowed:
-        raise ValueError(f"colour {colour!r} is not a {split!r} colour; "
-                         f"choose a palette index from {allowed.tolist()}")
+        shown = allowed.tolist() if len(allowed) <= 48 else f"split_colours({split!r}, cfg) ({len(allowed)})"
+        raise ValueError(f"colour {colour!r} is not a {split!r} colour; choose a palette index from {shown}")
 
 
 def sample_scene_colours(target, n_objects, split, rng, cfg=PaletteConfig()):
@@ -58,8 +161,9 @@ def sample_scene_colours(target, n_objects, split, rng, cfg=PaletteConfig()):
     chosen = [int(target)]
     candidates = split_colours(split, cfg)
     for _ in range(n_objects - 1):
-        ok = [c for c in candidates if np.all(hue_distance_deg(c, chosen, cfg) >= cfg.min_separation_deg)]
-        if not ok:
+        far = hue_distance_deg(candidates[:, None], np.array(chosen)[None], cfg) >= cfg.min_separation_deg
+        ok = candidates[far.all(axis=1)]      # (n,): colours far enough in hue from every one chosen
+        if not len(ok):
             raise ValueError(f"cannot find {n_objects} colours {cfg.min_separation_deg} degrees apart "
                              f"in the {split!r} split; lower min_separation_deg or n_objects")
         chosen.append(int(rng.choice(ok)))

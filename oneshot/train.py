@@ -19,9 +19,11 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from oneshot import checkpoint, collect, data, host, imitation, maml, network, optim, palette, shards
+from oneshot import checkpoint, collect, data, host, imitation, maml, methods, optim, palette, shards
 from oneshot.config import PROFILES, TrainConfig, inner_only
 from oneshot.expert import ExpertConfig
+from oneshot.palette import PaletteConfig
+from oneshot.world import WorldConfig
 
 
 def learning_rate(cfg, iteration):
@@ -35,14 +37,6 @@ def learning_rate(cfg, iteration):
     raise ValueError(f"lr_schedule must be 'constant' or 'cosine'; got {cfg.lr_schedule!r}")
 
 
-def initial_params(cfg, net_cfg, rng):
-    """The network's initial parameters, plus learnt inner step sizes (all `alpha`) if cfg.learn_alpha."""
-    params = network.init_params(net_cfg, rng)
-    if cfg.learn_alpha:
-        params.update(maml.init_step_sizes(params, cfg.alpha, inner_only(cfg)))
-    return params
-
-
 class TrainingDiverged(RuntimeError):
     """The meta-loss or meta-gradient became NaN or inf."""
 
@@ -54,12 +48,13 @@ def ensure_datasets(cfg, progress=True):
     out = []
     for path, split, demos, seed in ((cfg.train_data, "train", cfg.train_demos, 0),
                                      (cfg.heldout_data, "heldout", cfg.heldout_demos, 1)):
-        tasks = len(palette.split_colours(split))             # every colour of the split: 36 and 12
+        world_cfg = WorldConfig(palette=PaletteConfig(mode=cfg.palette))
+        tasks = len(palette.split_colours(split, world_cfg.palette))   # every colour of the split: 36 and 12
         if not os.path.exists(path):
             print(f"{path} is missing: collecting it (python -m oneshot.collect --out {path} --split "
-                  f"{split} --tasks {tasks} --demos {demos} --seed {seed} --noise {cfg.demo_noise})",
-                  file=sys.stderr)
-            data.save(collect.collect(tasks, demos, split, seed, progress=progress,
+                  f"{split} --tasks {tasks} --demos {demos} --seed {seed} --noise {cfg.demo_noise}"
+                  f"{' --palette ' + cfg.palette if cfg.palette != 'hues' else ''})", file=sys.stderr)
+            data.save(collect.collect(tasks, demos, split, seed, progress=progress, world_cfg=world_cfg,
                                       expert_cfg=ExpertConfig(action_noise=cfg.demo_noise)), path)
         out.append(data.load(path))
     return out
@@ -67,19 +62,34 @@ def ensure_datasets(cfg, progress=True):
 
 # --- training --------------------------------------------------------------------------------------
 
+def subset(dataset, tasks=0, demos=0):
+    """The first `tasks` tasks and first `demos` demos of each (0: all) of a dataset: the smaller
+    meta-training sets of the data-size experiment (`oneshot.experiments`)."""
+    n, k = dataset["images"].shape[:2]
+    if not (0 <= tasks <= n and 0 <= demos <= k) or demos == 1:
+        raise ValueError(f"the dataset has {n} tasks x {k} demos: need 0 <= tasks <= {n} and demos 0 or "
+                         f"2..{k} (0: all); got tasks={tasks}, demos={demos}")
+    tasks, demos = tasks or n, demos or k
+    out = {key: v[:tasks, :demos] if v.ndim >= 2 and key != "task_colours" else v[:tasks]
+           for key, v in dataset.items() if key != "metadata"}
+    return dict(out, metadata=dataset["metadata"])
+
+
 def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
-    """Meta-train a policy with MAML (Section II) on behavioural cloning (Section III).
+    """Meta-train a policy (Sections II-III): MAML on behavioural cloning, or a baseline of Section IV
+    with the same data, loss, optimiser and checkpoints (cfg.method, `oneshot.methods`).
 
     run_dir: folder for checkpoint.npz and log.jsonl. resume: continue from its checkpoint (the
     rest of the run is then identical to an uninterrupted one). stop_after: leave after this many
     iterations of this call (to test resuming). Returns the final parameters.
     """
     ckpt_path, log_path = os.path.join(run_dir, "checkpoint.npz"), os.path.join(run_dir, "log.jsonl")
-    inner_only(cfg), learning_rate(cfg, 0)    # unknown inner_params / lr_schedule fail here, not later
+    methods.check(cfg), inner_only(cfg), learning_rate(cfg, 0)    # bad names fail here, not later
     if not 0.0 <= cfg.ema < 1.0:
         raise ValueError(f"ema is the moving average's decay, in [0, 1) (0: off; e.g. 0.999); got {cfg.ema!r}")
     # 1. Data: both splits, in network units (images in [0, 1], states and torques of order one).
     train_set, heldout_set = ensure_datasets(cfg, progress)
+    train_set = subset(train_set, cfg.tasks, cfg.demos)
     max_torque = train_set["metadata"]["world"]["arm"]["max_torque"]
     demos = imitation.prepare_demos(train_set["images"], train_set["states"], train_set["actions"], max_torque)
     image_size = train_set["images"].shape[-2]
@@ -104,27 +114,30 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
         if os.path.exists(ckpt_path):
             raise FileExistsError(f"{run_dir!r} already holds a run; use --resume, or another --run folder")
         rng = np.random.default_rng(cfg.seed)
-        net_cfg = network.NetworkConfig(image_size=image_size, bias_transform=cfg.bias_transform,
-                                        feature_points=cfg.feature_points)
-        params = initial_params(cfg, net_cfg, rng)
+        net_cfg = methods.network_config(cfg, image_size)
+        params = methods.init_params(cfg, net_cfg, rng)
         adam, start = optim.adam_init(params), 0
         ema = dict(params) if cfg.ema else None
         os.makedirs(run_dir, exist_ok=True)
         open(log_path, "w").close()
     last_good = start
+    if cfg.method == "random":                   # nothing to train by gradient: pick the std, save, done
+        params, scores = random_std(cfg, train_set)
+        _log_now(log_path, {"iteration": 0, "random_std_success_on_training_colours": scores})
+        checkpoint.save(ckpt_path, params, optim.adam_init(params), cfg.iterations, rng, cfg, net_cfg)
+        return params
 
     # 3. Meta-training loop: sample tasks, adapt (eq. 1), score (eq. 2), meta-gradient, clip, Adam.
     end = cfg.iterations if stop_after is None else min(cfg.iterations, start + stop_after)
     bar = tqdm(range(start, end), initial=start, total=cfg.iterations, desc="meta-training",
                disable=not progress)
     t0 = time.perf_counter()
-    pool = shards.make_pool(cfg.shards)
-    settings = (cfg.alpha, cfg.inner_steps, cfg.first_order, inner_only(cfg))
+    pool = shards.make_pool(cfg.shards if cfg.method == "mil" else 1)
     try:
         with open(log_path, "a") as log:
             for it in bar:
                 adapt_demos, eval_demos = imitation.sample_meta_batch(demos, rng, cfg.meta_batch)
-                loss, grads = shards.meta_gradient(params, adapt_demos, eval_demos, settings, cfg.shards, pool)
+                loss, grads = methods.meta_gradient(cfg, params, adapt_demos, eval_demos, pool)
                 bad = [k for k, g in grads.items() if not np.all(np.isfinite(g))]
                 if not np.isfinite(loss) or bad:
                     raise TrainingDiverged(
@@ -142,9 +155,9 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
                                "seconds": round(time.perf_counter() - t0, 2)})
                     bar.set_postfix(meta_loss=f"{float(loss):.3f}")
                 if cfg.eval_every and done % cfg.eval_every == 0:
-                    r = imitation.one_shot_success(params if ema is None else ema, heldout_set, cfg.eval_trials,
-                                         cfg.alpha, cfg.inner_steps, only=inner_only(cfg), seed=done,
-                                         progress=False)
+                    condition = methods.conditioner(cfg, params if ema is None else ema, seed=done)
+                    r = imitation.one_shot_success(condition, heldout_set, cfg.eval_trials, seed=done,
+                                                   progress=False)
                     _log(log, {"iteration": done, "heldout_success": r["rate"], "trials": r["trials"]})
                     bar.set_postfix(meta_loss=f"{float(loss):.3f}", heldout=f"{r['rate']:.2f}")
                 if done % cfg.checkpoint_every == 0 or done == end:
@@ -158,8 +171,27 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
     return params
 
 
+def random_std(cfg, train_set):
+    """The random baseline's training: one-shot success on (at most 36 of) the meta-training colours
+    for each torque std of cfg.random_stds (cfg.eval_trials trials each); the best is kept, as the
+    paper reports the best. Returns ({"std": (1,)}, {std: success rate})."""
+    scores = {}
+    for std in cfg.random_stds:
+        params = {"std": np.array([std], np.float32)}
+        condition = methods.conditioner(cfg, params, seed=cfg.seed)
+        scores[std] = imitation.one_shot_success(condition, subset(train_set, min(36, len(train_set["images"]))),
+                                                 cfg.eval_trials, seed=cfg.seed, progress=False)["rate"]
+    best = max(cfg.random_stds, key=lambda s: scores[s])
+    return {"std": np.array([best], np.float32)}, scores
+
+
 def _log(f, record):
     f.write(json.dumps(record) + "\n")
+
+
+def _log_now(path, record):
+    with open(path, "a") as f:
+        _log(f, record)
 
 
 def _truncate_log(path, iteration):
@@ -181,7 +213,8 @@ def main(argv=None):
     p.add_argument("--run", default=None, help="run folder (default: runs/<profile>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --run from its checkpoint")
     for field in dataclasses.fields(TrainConfig):
-        kind = {bool: lambda s: s.lower() in ("1", "true", "yes")}.get(field.type, field.type)
+        kind = {bool: lambda s: s.lower() in ("1", "true", "yes"),
+                tuple: lambda s: tuple(float(x) for x in s.split(","))}.get(field.type, field.type)
         p.add_argument("--" + field.name.replace("_", "-"), type=kind, default=None,
                        help=f"override the profile's {field.name}")
     args = p.parse_args(argv)
@@ -195,8 +228,9 @@ def main(argv=None):
         train(cfg, run, resume=args.resume)
     except (TrainingDiverged, FileExistsError, ValueError, FileNotFoundError, shards.ShardError) as e:
         sys.exit(f"error: {e}")
-    print(f"trained {cfg.iterations} meta-iterations in {time.perf_counter() - t0:.0f} s; "
-          f"checkpoint: {os.path.join(run, 'checkpoint.npz')}")
+    done = "picked the random policy's torque std" if cfg.method == "random" else \
+        f"trained {cfg.iterations} meta-iterations"
+    print(f"{done} in {time.perf_counter() - t0:.0f} s; checkpoint: {os.path.join(run, 'checkpoint.npz')}")
 
 
 if __name__ == "__main__":

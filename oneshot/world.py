@@ -187,8 +187,9 @@ class ReachWorld:
                              f"got {colours.shape} and {positions.shape}")
         if not 0 <= scene.target < len(colours):
             raise ValueError(f"scene target index {scene.target} is out of range for {len(colours)} objects")
-        if colours.min() < 0 or colours.max() >= cfg.palette.size:
-            raise ValueError(f"scene colours must be palette indices in [0, {cfg.palette.size}); got {colours}")
+        n = palette.n_colours(cfg.palette)
+        if colours.min() < 0 or colours.max() >= n:
+            raise ValueError(f"scene colours must be palette indices in [0, {n}); got {colours}")
 
     # --- state ---------------------------------------------------------------------------------
     @property

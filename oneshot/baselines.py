@@ -1,0 +1,146 @@
+"""The baselines of paper Section IV, which one-shot imitation by meta-learning is compared with.
+
+All are trained on the same demonstrations with the same behavioural-cloning loss (eq. 2), the same
+meta-batches of (adapt, evaluate) demo pairs, the same convolutional trunk and fully connected widths
+as MIL's policy (`oneshot.network`). What differs is how the ONE demonstration of a new task enters:
+
+    contextual  the demonstration's final image, stacked on the current image as 3 more input
+                channels (the paper says "the final image of the demonstration" is the input; how it
+                enters the network it does not say: we stack it, so the first convolution can compare
+                the two images pixel by pixel)
+    lstm        a recurrent network reads the demonstration, frame by frame (the trunk's features of
+                the frame, the robot state and the demonstrated action); its final hidden state is
+                appended to the current observation's features and the state, and the fully
+                connected layers output the action (Duan et al. 2017, "One-Shot Imitation Learning";
+                the paper: an LSTM of 512 units on the trunk's final-layer features)
+    random      Gaussian torques of a fixed standard deviation, ignoring everything
+
+The policies act in network units, like MIL's (torques divided by the bound). The batched losses
+take demos with a leading task axis B: adapt = the demonstrations that condition the policy,
+evaluate = other demonstrations of the same tasks that it is scored on, as in meta-training.
+"""
+import autograd.numpy as anp
+import numpy as np
+
+from oneshot import imitation
+from oneshot.layers import add_bias, concat_last, matmul
+from oneshot.network import NetworkConfig, forward, head, init_params, trunk
+
+
+# ----------------------------------------------------------------------------------------------------
+# Contextual policy: the demonstration's final image as input
+# ----------------------------------------------------------------------------------------------------
+
+
+def contextual_images(images, context):
+    """images (..., T, H, W, 3) and context (..., H, W, 3) -> (..., T, H, W, 6): the context image
+    (the demo's final frame) stacked on every frame as 3 more channels."""
+    context = np.broadcast_to(context[..., None, :, :, :], images.shape)
+    return np.concatenate([images, context], axis=-1)
+
+
+def contextual_loss(params, adapt, evaluate):
+    """Mean over the B tasks of eq. (2) on the evaluate demo, the adapt demo's final image as context.
+
+    params: `init_params(NetworkConfig(image_channels=6, ...))`. adapt, evaluate: (images (B, T, H, W,
+    3), states (B, T, 6), actions (B, T, 2)) in network units. Returns a scalar.
+    """
+    images = contextual_images(evaluate[0], adapt[0][:, -1])
+    return imitation.imitation_loss(params, (images, evaluate[1], evaluate[2])) / len(images)
+
+
+def contextual_policy(params, demo):
+    """The contextual policy conditioned on one demo (images (T, H, W, 3), ...): a function
+    (image (1, H, W, 3), state (1, 6), scene) -> action (1, 2) for `imitation.rollout`."""
+    context = demo[0][-1]
+    return lambda image, state, scene: forward(params, contextual_images(image, context), state)
+
+
+# ----------------------------------------------------------------------------------------------------
+# LSTM policy: reads the demonstration, then acts
+# ----------------------------------------------------------------------------------------------------
+
+
+def lstm_network_config(net_cfg, units):
+    """The NetworkConfig of the LSTM policy's trunk and head: the head's input is the current frame's
+    features, the state and the LSTM's summary of the demo (`units` numbers, counted as extra state)."""
+    return NetworkConfig(image_size=net_cfg.image_size, channels=net_cfg.channels, kernel=net_cfg.kernel,
+                         hidden=net_cfg.hidden, state_dim=net_cfg.state_dim + units,
+                         action_dim=net_cfg.action_dim, feature_points=net_cfg.feature_points)
+
+
+def lstm_init_params(net_cfg, units, rng, dtype=np.float32):
+    """Parameters of the LSTM policy for net_cfg = `lstm_network_config(...)`: its trunk and head
+    (network init), plus lstm_w (n_in + units, 4 units) and lstm_b (4 units,), n_in = features +
+    state + action per demo frame. Gates in the order input, forget, cell, output; the forget gate's
+    bias starts at 1 (remember by default)."""
+    params = init_params(net_cfg, rng, dtype)
+    n_features = params["fc0_w"].shape[0] - net_cfg.state_dim
+    n_in = n_features + (net_cfg.state_dim - units) + net_cfg.action_dim
+    params["lstm_w"] = (rng.standard_normal((n_in + units, 4 * units)) / np.sqrt(n_in + units)).astype(dtype)
+    params["lstm_b"] = np.zeros(4 * units, dtype)
+    params["lstm_b"][units:2 * units] = 1.0
+    return params
+
+
+def lstm_step(w_h, xw, h, c):
+    """One LSTM step (Hochreiter & Schmidhuber 1997, with a forget gate): h, c (B, units), the
+    recurrent weights w_h (units, 4 units), and the input's share of the gates xw = x W_x + b
+    (B, 4 units), computed for all frames at once:
+
+        i, f, g, o = split(x W_x + b + h W_h);  c' = s(f) c + s(i) tanh(g);  h' = s(o) tanh(c')
+    """
+    units = h.shape[-1]
+    z = matmul(h, w_h) + xw                                                          # (B, 4 units)
+    i, f, g, o = (z[..., k * units:(k + 1) * units] for k in range(4))
+    c = _sigmoid(f) * c + _sigmoid(i) * anp.tanh(g)
+    return _sigmoid(o) * anp.tanh(c), c
+
+
+def _sigmoid(x):
+    return 0.5 * (anp.tanh(0.5 * x) + 1.0)        # = 1 / (1 + exp(-x)), without overflow
+
+
+def lstm_summary(params, demo):
+    """Read a batch of demos: images (B, T, H, W, 3), states (B, T, 6), actions (B, T, 2) -> the final
+    hidden state (B, units), after one LSTM step per frame on x = [features, state, action]."""
+    images, states, actions = demo
+    x = concat_last(trunk(params, images), states, actions)          # (B, T, n_in)
+    units = params["lstm_b"].shape[0] // 4
+    w_x, w_h = params["lstm_w"][:-units], params["lstm_w"][-units:]
+    xw = add_bias(matmul(x, w_x), params["lstm_b"])                  # (B, T, 4 units): every frame at once
+    h = c = np.zeros((images.shape[0], units), x.dtype)
+    for t in range(images.shape[1]):
+        h, c = lstm_step(w_h, xw[:, t], h, c)
+    return h
+
+
+def lstm_act(params, summary, images, states):
+    """Actions for observations images (B, T, H, W, 3), states (B, T, 6) given the demo summaries
+    (B, units) -> (B, T, 2): the head on [features, state, summary] of every frame."""
+    context = np.ones(states.shape[:-1] + (1,), states.dtype) * summary[:, None, :]
+    return head(params, concat_last(trunk(params, images), states, context))
+
+
+def lstm_loss(params, adapt, evaluate):
+    """Mean over the B tasks of eq. (2) on the evaluate demo, the policy having read the adapt demo."""
+    residual = lstm_act(params, lstm_summary(params, adapt), evaluate[0], evaluate[1]) - evaluate[2]
+    return anp.sum(residual * residual) / len(residual)
+
+
+def lstm_policy(params, demo):
+    """The LSTM policy after reading one demo (images (T, H, W, 3), ...): a function (image (1, H, W, 3),
+    state (1, 6), scene) -> action (1, 2) for `imitation.rollout`."""
+    summary = lstm_summary(params, tuple(a[None] for a in demo))                  # (1, units)
+    return lambda image, state, scene: lstm_act(params, summary, image[None], state[None])[0]
+
+
+# ----------------------------------------------------------------------------------------------------
+# Random policy
+# ----------------------------------------------------------------------------------------------------
+
+
+def random_policy(std, rng):
+    """Gaussian torques: a function (image, state, scene) -> action (1, 2) ~ N(0, std^2), network units
+    (std in units of the torque bound: std = 1 is the bound itself). rng: np.random.Generator."""
+    return lambda image, state, scene: std * rng.standard_normal((1, 2))

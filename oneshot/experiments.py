@@ -1,0 +1,278 @@
+"""The paper's experiments (Section IV): `python -m oneshot.experiments fig2 --profile quick|paper`.
+
+Figure 2 of the paper: one-shot success on held-out colours versus the size of the meta-training
+dataset, one line per method. A *run* is one method trained on one dataset size (colours x demos per
+colour) with one seed, then scored on the same held-out trials:
+
+    python -m oneshot.experiments fig2 --profile quick                    # 2 runs at a time, this machine
+    python -m oneshot.experiments fig2 --profile paper --workers 4
+    python -m oneshot.experiments fig2 --profile paper --local-cluster 4   # Dask, pip install ".[cluster]"
+    python -m oneshot.experiments fig2 --profile paper --scheduler tcp://host:8786
+
+It writes `docs/results/fig2_<profile>/`: runs.csv (one row per finished run), summary.json (per method
+and size: the mean over seeds, a 95% Wilson interval on the pooled trials, the range over seeds) and
+fig2.png (pip install ".[plots]"). Each run works in `runs/fig2/<run id>/` (profiles share the folder:
+the run id names everything a run depends on, so a run two profiles share is done once). Run the same
+command again to resume: finished runs (rows of runs.csv) are skipped, failed or interrupted ones are
+run again, from their own checkpoints.
+
+A sweep takes any `concurrent.futures.Executor` (a process pool by default; a thread pool; Dask's
+`Client.get_executor()`), so the function that performs one run, `run_fn(spec, run_dir, context)`, must
+be a module-level function (it is pickled) and write only inside its `run_dir`.
+"""
+import argparse
+import contextlib
+import dataclasses
+import json
+import os
+import shlex
+import sys
+import time
+from dataclasses import dataclass
+
+from oneshot import checkpoint, collect, data, host, imitation, methods, train
+from oneshot.config import PROFILES as PROFILES_TRAIN
+from oneshot.expert import ExpertConfig
+from oneshot.palette import PaletteConfig
+from oneshot.sweep import PLOTS, RunSpec, SweepLocked, plot, summarise, sweep, write_summary
+from oneshot.world import WorldConfig
+
+# Optional extras: the sweep runs without them and says which one a flag or the plot needs.
+try:
+    import distributed                         # pip install ".[cluster]": --scheduler, --local-cluster
+except ImportError:
+    distributed = None
+
+def _default(**changes):
+    return dataclasses.replace(PROFILES_TRAIN["default"], **changes)
+
+
+# The methods, as training configurations. All share the default profile's recipe (feature points, bias
+# transformation, Adam 3e-3, clipping, moving average 0.999, meta-batch 5); they differ in how one
+# demonstration enters (`oneshot.methods`).
+#   mil        the default profile: one inner step of 0.3 on the first convolution
+#   mil-paper  every parameter adapts (the paper's inner loop), one step of 0.25: MIL's released code
+#              scores eq. (2) as mean((100 (u - u_hat))^2), 10^4 times the mean squared error, with a
+#              nominal step of 0.001, i.e. a step of 10 on the mean squared error; our eq. (2) is a sum
+#              over 20 frames x 2 torques (40 times the mean), so that step is alpha = 10 / 40 = 0.25
+# and the variants of the hyperparameter search (`--profile search`, docs/experiments.md).
+METHOD_CONFIGS = {
+    "mil": _default(),
+    "mil-paper": _default(inner_params="all", alpha=0.25),
+    "contextual": _default(method="contextual"),
+    "lstm": _default(method="lstm"),
+    "random": _default(method="random"),
+    "mil-paper-a0.05": _default(inner_params="all", alpha=0.05),
+    "mil-paper-a0.01": _default(inner_params="all", alpha=0.01),
+    "contextual-lr1e-3": _default(method="contextual", lr=1e-3),
+    "lstm-lr1e-3": _default(method="lstm", lr=1e-3),
+    "lstm-512": _default(method="lstm", lstm_units=512),
+}
+METHODS = ("mil", "mil-paper", "contextual", "lstm", "random")      # the lines of the figure
+
+LABELS = {"mil": "MIL (first convolution adapts)", "mil-paper": "MIL (every parameter adapts, as the paper)",
+          "contextual": "contextual policy", "lstm": "LSTM", "random": "random policy"}
+
+
+def relative_cost(label):
+    """Seconds of one meta-iteration in one process (`python -m oneshot.benchmark maml --shards 1
+    [--inner-params all | --method M]`), only to order the runs, cheapest first."""
+    cfg = METHOD_CONFIGS[label]
+    if cfg.method == "mil":
+        return 0.147 if cfg.inner_params == "all" else 0.104
+    return {"contextual": 0.031, "lstm": 0.078 if cfg.lstm_units <= 100 else 0.156, "random": 0.0}[cfg.method]
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    """A Figure 2 sweep: every method x size x seed. The defaults are the "paper" profile: 5 sizes from
+    192 to 5184 demonstrations (27x), 3 seeds, 5000 meta-iterations per run."""
+    name: str = "paper"
+    sizes: tuple = ((24, 8), (36, 12), (72, 12), (144, 16), (324, 16))  # (colours, demos per colour)
+    methods: tuple = METHODS
+    seeds: tuple = (0, 1, 2)
+    iterations: int = 5000                 # meta-iterations per run
+    trials: int = 10                       # trials per held-out colour (10 x 12 colours: 120 trials)
+    palette_mode: str = "grid"             # oneshot.palette.PaletteConfig(mode=...): enough colours for 324
+    eval_seed: int = 0                     # seed of the held-out trial scenes: the same for every run
+    data: tuple = (324, 16)                # (colours, demos) collected once; every size is its first part
+    heldout: tuple = (12, 10)              # held-out (colours, demos): each trial adapts on one of the demos
+
+    def __post_init__(self):
+        if not self.sizes or len({c * d for c, d in self.sizes}) != len(self.sizes):
+            raise ValueError(f"sizes must be distinct (colours, demos) pairs with distinct products "
+                             f"(one point per size on the figure); got {self.sizes}")
+        if not self.methods or set(self.methods) - set(METHOD_CONFIGS) or len(set(self.methods)) != len(self.methods):
+            raise ValueError(f"methods must be distinct names from {', '.join(METHOD_CONFIGS)}; got {self.methods}")
+        if not self.seeds or len(set(self.seeds)) != len(self.seeds):
+            raise ValueError(f"seeds must be distinct; got {self.seeds}")
+        if self.trials < 1:
+            raise ValueError(f"trials (per held-out colour) must be >= 1; got {self.trials}")
+        for c, d in self.sizes:                # checks the pair's types and signs
+            RunSpec(self.methods[0], c, d, self.seeds[0], self.iterations)
+            if c > self.data[0] or d > self.data[1]:
+                raise ValueError(f"size ({c}, {d}) is larger than the collected data {self.data}")
+
+
+PROFILES = {
+    "quick": SweepConfig(name="quick", sizes=((24, 8), (72, 12), (324, 16)), seeds=(0,), iterations=3000),
+    "paper": SweepConfig(),
+    "search": SweepConfig(name="search", sizes=((72, 12),), seeds=(0,), iterations=3000,
+                          methods=tuple(m for m in METHOD_CONFIGS if m != "random")),
+    "tiny": SweepConfig(name="tiny", sizes=((3, 3), (3, 4)), seeds=(0, 1), iterations=2, trials=2,  # tests
+                        data=(3, 4), heldout=(2, 2)),
+}
+
+
+def plan(cfg):
+    """Every method x size x seed of `cfg`, as a list of RunSpec, cheapest first: seed by seed (so the
+    first pass draws the whole figure once), within a seed the smaller datasets, then the cheaper methods."""
+    runs = [RunSpec(m, c, d, s, cfg.iterations) for m in cfg.methods for c, d in cfg.sizes for s in cfg.seeds]
+    return sorted(runs, key=lambda r: (r.seed, r.size, relative_cost(r.method) * r.iterations, r.method))
+
+
+def data_paths(cfg, data_dir):
+    """(meta-training, held-out) dataset paths of a sweep: named by what they hold, so profiles that
+    collect the same data share it."""
+    (c, d), (hc, hd) = cfg.data, cfg.heldout
+    return (os.path.join(os.path.abspath(data_dir), f"{cfg.palette_mode}_train_c{c}_d{d}_s0.npz"),
+            os.path.join(os.path.abspath(data_dir), f"{cfg.palette_mode}_heldout_c{hc}_d{hd}_s1.npz"))
+
+
+def ensure_data(cfg, data_dir, workers=None, progress=True):
+    """Collect the sweep's two datasets if missing (all cores; seeds 0 and 1, DART noise 0.1 N m as
+    the default profile's): the first `cfg.data` colours x demos of the palette's meta-training split,
+    and `cfg.heldout` of its held-out split. Every run then trains on the first part of the former."""
+    world_cfg = WorldConfig(palette=PaletteConfig(mode=cfg.palette_mode))
+    expert_cfg = ExpertConfig(action_noise=PROFILES_TRAIN["default"].demo_noise)
+    for path, (c, d), split, seed in zip(data_paths(cfg, data_dir), (cfg.data, cfg.heldout),
+                                         ("train", "heldout"), (0, 1)):
+        if not os.path.exists(path):
+            print(f"collecting {path}: {c} {split} colours x {d} demos", file=sys.stderr)
+            data.save(collect.collect(c, d, split, seed, workers, world_cfg, expert_cfg, progress), path)
+
+
+def run_context(cfg, data_dir="data/fig2"):
+    """The small picklable dict every run_fn receives besides its spec and folder: what all runs of the
+    sweep share. Paths are absolute (workers may start elsewhere)."""
+    train_data, heldout_data = data_paths(cfg, data_dir)
+    return {"profile": cfg.name, "data_dir": os.path.abspath(data_dir), "trials": cfg.trials,
+            "palette_mode": cfg.palette_mode, "eval_seed": cfg.eval_seed, "train_data": train_data,
+            "heldout_data": heldout_data}
+
+
+# ----------------------------------------------------------------------------------------------------
+# One run: train one method on one dataset size with one seed, then score it on the held-out trials
+# ----------------------------------------------------------------------------------------------------
+
+def run_config(spec, context):
+    """The TrainConfig of one run: its method's configuration on the first `spec.colours` colours x
+    `spec.demos` demos of the sweep's meta-training data, one process (the sweep runs several)."""
+    return dataclasses.replace(
+        METHOD_CONFIGS[spec.method], **context.get("overrides", {}).get(spec.method, {}),
+        train_data=context["train_data"], heldout_data=context["heldout_data"], palette=context["palette_mode"],
+        tasks=spec.colours, demos=spec.demos, seed=spec.seed, iterations=spec.iterations, shards=1,
+        eval_every=0, checkpoint_every=250, log_every=50)
+
+
+def run_one(spec, run_dir, context):
+    """Train (or resume) one run in run_dir and score it on context["trials"] trials per held-out
+    colour (`imitation.one_shot_success`, trial seed 0: the same scenes for every run).
+    Returns {"wall_seconds", "successes", "trials"} (wall_seconds adds up every sitting), and for the
+    random policy the torque std it picked (the `notes` column)."""
+    host.tune_malloc()
+    host.blas_threads(1)                                   # several runs share the cores
+    cfg = run_config(spec, context)
+    clock = os.path.join(run_dir, "wall_seconds.json")
+    spent = json.load(open(clock)) if os.path.exists(clock) else 0.0
+    t0 = time.perf_counter()
+    resume = os.path.exists(os.path.join(run_dir, "checkpoint.npz"))
+    train.train(cfg, run_dir, resume=resume, progress=False)
+    ckpt = checkpoint.load(os.path.join(run_dir, "checkpoint.npz"))
+    heldout = data.load(context["heldout_data"])
+    condition = methods.conditioner(cfg, checkpoint.policy_params(ckpt), seed=context["eval_seed"])
+    r = imitation.one_shot_success(condition, heldout, context["trials"], context["eval_seed"], progress=False)
+    spent += time.perf_counter() - t0
+    with data.atomic_write(clock) as f:
+        f.write(json.dumps(spent).encode())
+    notes = {"std": round(float(ckpt["params"]["std"][0]), 6)} if cfg.method == "random" else {}
+    return {"wall_seconds": round(spent, 1), "successes": r["successes"], "trials": r["trials"], **notes}
+
+# --- command line ------------------------------------------------------------------------------------
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but an argument error is one line on stderr (and exit status 2)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def _executor(args, stack):
+    """The executor the flags ask for (None: the sweep's own process pool)."""
+    if args.scheduler or args.local_cluster:
+        cluster = args.scheduler or stack.enter_context(
+            distributed.LocalCluster(n_workers=args.local_cluster, threads_per_worker=1, processes=True))
+        client = stack.enter_context(distributed.Client(cluster))
+        print(f"Dask scheduler {client.scheduler.address}: {len(client.scheduler_info()['workers'])} workers",
+              file=sys.stderr)
+        return client.get_executor(pure=False)
+    return None
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else list(argv)
+    p = _Parser(prog="python -m oneshot.experiments", description=__doc__,
+                formatter_class=argparse.RawDescriptionHelpFormatter)
+    commands = p.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
+    f = commands.add_parser("fig2", help="one-shot success vs. meta-training dataset size, per method")
+    f.add_argument("--profile", choices=sorted(PROFILES), default="quick", help="named sweep (default: quick)")
+    f.add_argument("--out", default=None, help="results folder (default: docs/results/fig2_<profile>)")
+    f.add_argument("--work", default=os.path.join("runs", "fig2"), help="runs' work folders (default: runs/fig2)")
+    f.add_argument("--data", default="data/fig2", help="datasets folder, given to every run (default: data/fig2)")
+    f.add_argument("--no-progress", action="store_true", help="no progress bar")
+    where = f.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, help="runs at a time in a process pool (default 2)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help='run on a running Dask scheduler, e.g. tcp://host:8786 (pip install ".[cluster]")')
+    where.add_argument("--local-cluster", type=int, default=None, metavar="N",
+                       help='start a Dask cluster of N one-thread worker processes here (pip install ".[cluster]")')
+    args = p.parse_args(argv)
+    if args.workers is not None and args.workers < 1:
+        f.error(f"--workers must be >= 1; got {args.workers}")
+    if args.local_cluster is not None and args.local_cluster < 1:
+        f.error(f"--local-cluster must be >= 1; got {args.local_cluster}")
+    if (args.scheduler or args.local_cluster) and distributed is None:
+        f.error(f"{'--scheduler' if args.scheduler else '--local-cluster'} needs Dask: pip install \".[cluster]\"")
+    cfg = PROFILES[args.profile]
+    out = args.out or os.path.join("docs", "results", f"fig2_{cfg.name}")
+    work = args.work
+    runs = plan(cfg)
+    ensure_data(cfg, args.data, progress=not args.no_progress)
+    with contextlib.ExitStack() as stack:
+        try:
+            executor = _executor(args, stack)
+        except OSError as e:                   # Client() could not reach the scheduler
+            sys.exit(f"error: no Dask scheduler at {args.scheduler}: {e}")
+        try:
+            rows = sweep(runs, out, work, run_context(cfg, args.data), run_one, executor=executor,
+                         progress=not args.no_progress, workers=args.workers or 2)
+        except SweepLocked as e:
+            sys.exit(f"error: {e}")
+        except KeyboardInterrupt:
+            sys.exit(f"interrupted; the finished runs are in {os.path.join(out, 'runs.csv')}: "
+                     f"run the same command to resume")
+    summary = summarise(rows, cfg, "python -m oneshot.experiments " + shlex.join(argv))
+    write_summary(summary, os.path.join(out, "summary.json"))
+    print(f"{len(rows)} of {len(runs)} runs finished: {os.path.join(out, 'runs.csv')}, "
+          f"{os.path.join(out, 'summary.json')}")
+    if not PLOTS:
+        print('fig2.png not drawn: the plot needs matplotlib (pip install ".[plots]")')
+    elif rows:
+        plot(summary, os.path.join(out, "fig2.png"), {m: LABELS.get(m, m) for m in METHOD_CONFIGS},
+             title=f"Figure 2 ({cfg.name} profile, {len(cfg.seeds)} seed{'s' * (len(cfg.seeds) > 1)})")
+        print(f"figure: {os.path.join(out, 'fig2.png')}")
+    return 0 if len(rows) == len(runs) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

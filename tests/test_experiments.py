@@ -1,0 +1,255 @@
+"""The Figure 2 sweep machinery, with a fake run: plan, resume, failures, executors, summary, plot, CLI."""
+import concurrent.futures
+import csv
+import dataclasses
+import fcntl
+import glob
+import json
+import os
+
+import numpy as np
+import pytest
+
+from oneshot import experiments
+from oneshot import sweep as sweeping
+from oneshot.evaluate import wilson_interval
+from oneshot.experiments import PROFILES, plan, run_context
+from oneshot.sweep import COLUMNS, RunSpec, summarise, sweep
+
+TINY = PROFILES["tiny"]
+HELDOUT_COLOURS = 12
+
+
+def fake_run(spec, run_dir, context):
+    """A run that trains nothing: deterministic numbers from the spec; one file per call in run_dir;
+    fails while run_dir holds a file named "fail"."""
+    with open(os.path.join(run_dir, f"call-{len(os.listdir(run_dir))}"), "w"):
+        pass
+    if os.path.exists(os.path.join(run_dir, "fail")):
+        raise RuntimeError("told to fail")
+    trials = HELDOUT_COLOURS * context["trials"]
+    return {"successes": (spec.colours * spec.demos + spec.seed) % trials, "trials": trials,
+            "final_loss": 0.5 + spec.seed, "profile": context["profile"]}
+
+
+def calls(work_dir):
+    return len(glob.glob(os.path.join(work_dir, "*", "call-*")))
+
+
+def run_sweep(tmp_path, executor=None, **kwargs):
+    with (concurrent.futures.ThreadPoolExecutor(2) if executor is None else executor) as ex:
+        return sweep(plan(TINY), tmp_path / "results", tmp_path / "work", run_context(TINY, tmp_path / "data"),
+                     executor=ex, run_fn=fake_run, progress=False, **kwargs)
+
+
+def without_time(rows):
+    return [{k: v for k, v in row.items() if k != "wall_seconds"} for row in rows]
+
+
+def test_plan_is_every_method_size_and_seed_cheapest_first():
+    for cfg in PROFILES.values():
+        runs = plan(cfg)
+        assert sorted((r.method, (r.colours, r.demos), r.seed) for r in runs) == sorted(
+            (m, s, seed) for m in cfg.methods for s in cfg.sizes for seed in cfg.seeds)
+        assert len({r.run_id for r in runs}) == len(runs)
+        assert all(r.iterations == cfg.iterations for r in runs)
+        # seed by seed, small datasets first: the first len(sizes) x len(methods) runs draw the whole figure
+        first = runs[:len(cfg.sizes) * len(cfg.methods)]
+        assert {r.seed for r in first} == {cfg.seeds[0]} and [r.size for r in first] == sorted(r.size for r in first)
+    assert plan(PROFILES["quick"])[0].method == "random"
+    assert len(plan(PROFILES["paper"])) == 5 * 5 * 3
+
+
+def test_run_spec_names_and_checks():
+    spec = RunSpec("lstm", 72, 12, 1, 6000)
+    assert (spec.size, spec.run_id) == (864, "lstm_c72_d12_s1_i6000")
+    assert RunSpec("mil-paper", 3, 4, 0, 2).run_id == "mil-paper_c3_d4_s0_i2"
+    with pytest.raises(ValueError, match="methods must be distinct names from"):
+        experiments.SweepConfig(methods=("mil", "maml"))
+    with pytest.raises(ValueError, match="colours must be an int >= 1"):
+        RunSpec("mil", 0, 3, 0, 2)
+    with pytest.raises(ValueError, match="distinct products"):
+        experiments.SweepConfig(sizes=((24, 6), (12, 12)))
+    with pytest.raises(ValueError, match="larger than the collected data"):
+        experiments.SweepConfig(sizes=((400, 8),))
+
+
+def test_sweep_writes_one_row_per_run_with_the_columns(tmp_path):
+    rows = run_sweep(tmp_path)
+    with open(tmp_path / "results" / "runs.csv", newline="") as f:
+        reader = csv.DictReader(f)
+        written = list(reader)
+    assert tuple(reader.fieldnames) == COLUMNS
+    assert len(written) == len(rows) == len(plan(TINY))
+    keys = [(r["method"], int(r["size"]), int(r["seed"])) for r in written]
+    assert keys == sorted(keys)                                  # sorted by (method, size, seed)
+    for row in written:
+        spec = RunSpec(row["method"], int(row["colours"]), int(row["demos_per_colour"]), int(row["seed"]),
+                       int(row["iterations"]))
+        expected = fake_run(spec, tmp_path, run_context(TINY))
+        assert int(row["size"]) == spec.size
+        assert (int(row["successes"]), int(row["trials"])) == (expected["successes"], expected["trials"])
+        assert float(row["rate"]) == round(expected["successes"] / expected["trials"], 4)
+        lo, hi = wilson_interval(expected["successes"], expected["trials"])
+        assert (float(row["ci_low"]), float(row["ci_high"])) == (round(lo, 4), round(hi, 4))
+        assert json.loads(row["notes"]) == {"final_loss": 0.5 + spec.seed, "profile": "tiny"}
+    assert without_time(sweeping.read_rows(tmp_path / "results" / "runs.csv")) == without_time(rows)
+
+
+def test_second_sweep_redoes_nothing(tmp_path):
+    first = run_sweep(tmp_path)
+    assert calls(tmp_path / "work") == len(plan(TINY))
+    second = run_sweep(tmp_path)
+    assert calls(tmp_path / "work") == len(plan(TINY))
+    assert second == first
+
+
+def test_failed_run_is_left_out_and_retried_alone(tmp_path, capsys):
+    bad = plan(TINY)[3]
+    os.makedirs(tmp_path / "work" / bad.run_id)
+    (tmp_path / "work" / bad.run_id / "fail").touch()
+    rows = run_sweep(tmp_path)
+    assert len(rows) == len(plan(TINY)) - 1
+    assert bad.run_id not in {sweeping.row_id(r) for r in sweeping.read_rows(tmp_path / "results" / "runs.csv")}
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and bad.run_id in err[0] and "RuntimeError: told to fail" in err[0]
+    assert "told to fail" in (tmp_path / "work" / bad.run_id / "error.txt").read_text()
+    (tmp_path / "work" / bad.run_id / "fail").unlink()
+    before = calls(tmp_path / "work")
+    rows = run_sweep(tmp_path)
+    assert calls(tmp_path / "work") == before + 1 and len(rows) == len(plan(TINY))
+    assert not (tmp_path / "work" / bad.run_id / "error.txt").exists()
+
+
+def test_bad_results_are_run_failures():
+    spec = RunSpec("mil", 3, 3, 0, 2)
+    for result, message in (({"successes": 5, "trials": 3}, "5 successes in 3 trials"),
+                             ({"trials": 3}, "'successes' and 'trials'"),
+                             ({"successes": 1, "trials": 3, "rate": 0.3}, "fills those columns itself")):
+        with pytest.raises(ValueError, match=message):
+            sweeping.row_of(spec, result, 1.0)
+    row = sweeping.row_of(spec, {"successes": 1, "trials": 3, "wall_seconds": 99.0, "loss": np.float32(0.5),
+                                    "steps": np.int64(7)}, 1.0)
+    assert row["wall_seconds"] == 99.0 and json.loads(row["notes"]) == {"loss": 0.5, "steps": 7}
+
+
+def test_a_second_sweep_on_the_same_work_folder_is_refused(tmp_path):
+    os.makedirs(tmp_path / "work")
+    with open(tmp_path / "work" / ".sweep.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)       # a sweep holds the folder
+        with pytest.raises(sweeping.SweepLocked, match="another sweep is running"):
+            run_sweep(tmp_path)
+    assert calls(tmp_path / "work") == 0
+    assert len(run_sweep(tmp_path)) == len(plan(TINY))          # released: the sweep runs
+
+
+def test_thread_and_process_pools_give_the_same_rows(tmp_path):
+    threads = run_sweep(tmp_path / "threads")
+    processes = sweep(plan(TINY)[:4], tmp_path / "processes" / "results", tmp_path / "processes" / "work",
+                      run_context(TINY, tmp_path / "threads" / "data"), run_fn=fake_run, progress=False)
+    by_id = {sweeping.row_id(r): r for r in without_time(threads)}
+    assert without_time(processes) == sorted((by_id[r.run_id] for r in plan(TINY)[:4]), key=sweeping.row_order)
+
+
+def test_dask_executor_gives_the_same_rows(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    runs = plan(TINY)[:2]
+    threads = run_sweep(tmp_path / "threads")
+    by_id = {sweeping.row_id(r): r for r in without_time(threads)}
+    # In-process workers: a cluster of processes takes ~5 s to start (the process pool test above
+    # covers pickling); what this checks is that Dask's executor plugs in unchanged.
+    with distributed.Client(processes=False, n_workers=2, threads_per_worker=1, dashboard_address=None) as client:
+        rows = sweep(runs, tmp_path / "dask" / "results", tmp_path / "dask" / "work",
+                     run_context(TINY, tmp_path / "threads" / "data"), executor=client.get_executor(pure=False),
+                     run_fn=fake_run, progress=False)
+    assert without_time(rows) == sorted((by_id[r.run_id] for r in runs), key=sweeping.row_order)
+
+
+def test_summarise_pools_seeds():
+    def row(seed, successes, trials, size=(24, 8)):
+        return {"method": "mil", "size": size[0] * size[1], "colours": size[0], "demos_per_colour": size[1],
+                "seed": seed, "iterations": 10, "successes": successes, "trials": trials}
+    rows = [row(0, 90, 120), row(1, 60, 120), row(2, 105, 120), row(0, 10, 40, size=(3, 3))]
+    s = summarise(rows, PROFILES["tiny"], "python -m oneshot.experiments fig2 --profile tiny")
+    small, big = s["methods"]["mil"]
+    assert (small["size"], small["runs"], small["mean_rate"]) == (9, 1, 0.25)
+    assert big["size"] == 192 and big["seeds"] == [0, 1, 2]
+    assert (big["successes"], big["trials"]) == (255, 360)
+    assert big["mean_rate"] == pytest.approx((0.75 + 0.5 + 0.875) / 3)
+    assert (big["min_rate"], big["max_rate"]) == (0.5, 0.875)
+    # the Wilson 95% interval of the pooled 255/360 (not of a mean of three intervals), by hand:
+    # p = 0.70833, centre (p + z^2/2n) / (1 + z^2/n) = 0.70613, half-width 0.04676
+    assert big["ci_low"] == pytest.approx(0.65938, abs=1e-4) and big["ci_high"] == pytest.approx(0.75289, abs=1e-4)
+    assert s["config"]["name"] == "tiny" and s["runs"] == 4
+    assert s["command"].endswith("--profile tiny")
+    json.dumps(s)
+    with pytest.raises(ValueError, match="mixes runs"):
+        summarise([row(0, 1, 2, size=(24, 8)), row(1, 1, 2, size=(12, 16))])
+
+
+def test_plot_writes_a_png(tmp_path):
+    pytest.importorskip("matplotlib")
+    rows = run_sweep(tmp_path)
+    sweeping.plot(summarise(rows), tmp_path / "fig2.png", experiments.LABELS)
+    assert (tmp_path / "fig2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not glob.glob(str(tmp_path / ".tmp-*"))               # atomic: no temporary file left
+
+
+def test_cli_writes_summary_and_says_when_the_plot_needs_matplotlib(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(experiments, "run_one", fake_run)      # the default run_fn, in threads
+    monkeypatch.setattr(experiments, "PLOTS", False)
+    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor",
+                        lambda workers, mp_context: concurrent.futures.ThreadPoolExecutor(workers))
+    argv = ["fig2", "--profile", "tiny", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
+            "--data", str(tmp_path / "data"), "--no-progress"]
+    assert experiments.main(argv) == 0
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["runs"] == len(plan(TINY))
+    assert summary["command"] == "python -m oneshot.experiments " + " ".join(argv)
+    assert summary["config"] == json.loads(json.dumps(dataclasses.asdict(TINY)))
+    assert 'pip install ".[plots]"' in capsys.readouterr().out
+    assert not (tmp_path / "out" / "fig2.png").exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["fig2", "--profile", "huge"], "invalid choice: 'huge'"),
+    (["fig2", "--workers", "0"], "--workers must be >= 1"),
+    (["fig2", "--workers", "2", "--local-cluster", "2"], "not allowed with argument"),
+    (["fig2", "--local-cluster", "0"], "--local-cluster must be >= 1"),
+    (["fig3"], "invalid choice: 'fig3'"),
+])
+def test_cli_argument_errors_are_one_line_and_status_2(argv, message, capsys):
+    with pytest.raises(SystemExit) as e:
+        experiments.main(argv)
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and message in err
+
+
+def test_cli_names_the_cluster_extra_when_dask_is_missing(monkeypatch, capsys):
+    monkeypatch.setattr(experiments, "distributed", None)
+    with pytest.raises(SystemExit) as e:
+        experiments.main(["fig2", "--scheduler", "tcp://localhost:8786"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and 'pip install ".[cluster]"' in err
+
+
+def test_real_runs_resume_and_give_the_same_rows_in_threads_and_processes(tmp_path):
+    """Two real tiny runs (`experiments.run_one`: train, checkpoint, score on the held-out trials) in a
+    thread pool and in the default process pool: the same rows; a second sweep trains nothing again."""
+    runs = [r for r in plan(TINY) if r.seed == 0 and r.method in ("mil", "lstm") and r.size == 9]
+    experiments.ensure_data(TINY, tmp_path / "data", workers=1, progress=False)
+    context = run_context(TINY, tmp_path / "data")
+    with concurrent.futures.ThreadPoolExecutor(2) as ex:
+        threads = sweep(runs, tmp_path / "t" / "results", tmp_path / "t" / "work", context, experiments.run_one,
+                        executor=ex, progress=False)
+    processes = sweep(runs, tmp_path / "p" / "results", tmp_path / "p" / "work", context, experiments.run_one,
+                      progress=False)
+    assert len(threads) == 2 and without_time(threads) == without_time(processes)
+    assert all(r["trials"] == 2 * TINY.trials for r in threads)              # 2 held-out colours
+    checkpoints = sorted(glob.glob(str(tmp_path / "p" / "work" / "*" / "checkpoint.npz")))
+    stamps = [os.path.getmtime(c) for c in checkpoints]
+    assert len(checkpoints) == 2
+    again = sweep(runs, tmp_path / "p" / "results", tmp_path / "p" / "work", context, experiments.run_one,
+                  progress=False)
+    assert again == processes and [os.path.getmtime(c) for c in checkpoints] == stamps
+
