@@ -6,7 +6,12 @@ One-shot visual imitation, end to end (paper Sections III-IV):
      one step on its first convolution layer, docs/results.md);
   3. the adapted policy acts in new scenes of that colour (new positions, new distractors).
 Prints the one-shot success rate (with a 95% interval) and the unadapted policy's for contrast, and
-writes pictures to DIR: the demo and the adapted policy side by side (PNG), and one trial (GIF).
+writes two pictures to DIR, the target ringed in every frame:
+  one_shot.png        for 4 held-out colours, the demo above the adapted policy's trial in a new scene,
+                      each row labelled with the colour and the trial's outcome (a failure among them if
+                      any trial failed);
+  one_shot_trial.gif  one colour's demo, and the policy before and after adapting in the SAME new scene,
+                      side by side (a scene where adapting made the difference, if there is one).
 
 The policy is the pre-trained checkpoint shipped in `oneshot/pretrained/` (the default profile's
 run in docs/results.md; reproduce it with `python -m oneshot.train --profile default`, seed 0), or
@@ -15,12 +20,94 @@ any checkpoint you pass.
 import argparse
 import os
 
-from oneshot import checkpoint, expert, imitation, palette, viz
+import numpy as np
+
+from oneshot import checkpoint, expert, imitation, palette, render, viz
 from oneshot.config import inner_only
 from oneshot.evaluate import wilson_interval
-from oneshot.world import ReachWorld, WorldConfig
+from oneshot.world import ReachWorld, WorldConfig, closest_object
 
 PRETRAINED = os.path.join(os.path.dirname(__file__), "pretrained", "mil_default.npz")
+SHOWN_COLOURS = 4           # held-out colours in the film strip, one trial each
+NEAR_MISS, DISTRACTOR = "missed: near miss", "missed: went to a distractor"    # the ways a trial fails
+
+
+def shown_trials(successes, n_shown=SHOWN_COLOURS):
+    """Which trials the film strip shows: the first trial of each of the first `n_shown` colours, but
+    at least one failed trial if any failed (the first failure, in its colour's row, or in the last row
+    if its colour is not among them), so the picture does not show only the successes.
+
+    successes: (colours, trials) bool. Returns n_shown (colour, trial) index pairs in colour order.
+    """
+    successes = np.asarray(successes, dtype=bool)
+    shown = {i: 0 for i in range(min(n_shown, len(successes)))}
+    failed = np.argwhere(~successes)                       # (failures, 2), in colour-major order
+    if len(failed) and all(successes[i, j] for i, j in shown.items()):
+        i, j = (int(v) for v in failed[0])
+        if i not in shown:
+            del shown[max(shown)]
+        shown[i] = j
+    return sorted(shown.items())
+
+
+def contrast_trial(adapted, unadapted):
+    """The trial the animation shows: the first where the policy reached the target after adapting and
+    went to a distractor before it, else the first where adapting turned any miss into a success, else
+    the first success after adapting, else the first trial. adapted, unadapted: (colours, trials)
+    `outcome` strings of the same scenes. Returns (colour, trial) indices."""
+    adapted, unadapted = np.asarray(adapted), np.asarray(unadapted)
+    reached = adapted == "reached"
+    for candidates in (reached & (unadapted == DISTRACTOR), reached & (unadapted != "reached"), reached):
+        if candidates.any():
+            return tuple(int(v) for v in np.argwhere(candidates)[0])
+    return 0, 0
+
+
+def outcome(trial):
+    """"reached", "missed: near miss" (closest to the target over the final fifth, not within reach) or
+    "missed: went to a distractor", as `oneshot.imitation.one_shot_success` counts failures."""
+    if trial["success"]:
+        return "reached"
+    closest, _ = closest_object(trial["end_effector"], trial["scene"].positions)
+    return NEAR_MISS if closest == trial["scene"].target else DISTRACTOR
+
+
+def target_pixels(scene, cfg):
+    """The scene's target centre in frame pixels (x, y), and a ring radius in frame pixels (twice the disc's)."""
+    centre = render.world_to_pixels(scene.target_position, cfg.arena_half_width, cfg.image_size)
+    return centre, 2 * cfg.object_radius * cfg.image_size / (2 * cfg.arena_half_width)
+
+
+def film_strip(cfg, pairs):
+    """The demo's film strip: for each (demo, trial) pair a row for the demonstration and, unless the trial
+    is None, a row for the adapted policy's trial; each row labelled with the target colour's name and
+    (trials) the outcome, the target ringed in every frame. cfg: the WorldConfig. Returns a PIL image."""
+    rgb = palette.palette_rgb(cfg.palette)
+    rows, labels, targets, swatches = [], [], [], []
+    for demo, trial in pairs:
+        colour = demo["scene"].target_colour
+        name = palette.colour_name(colour, cfg.palette)
+        for episode, what in ((demo, "demonstration"), (trial, "adapted, new scene")):
+            if episode is not None:
+                rows.append(episode["images"])
+                labels.append(f"{name}\n{what}" + (f"\n{outcome(episode)}" if episode is trial else ""))
+                targets.append(target_pixels(episode["scene"], cfg)[0])
+                swatches.append(rgb[colour])
+    radius = target_pixels(pairs[0][0]["scene"], cfg)[1]
+    return viz.filmstrip(rows, labels=labels, targets=targets, radius=radius, swatches=swatches,
+                         group=2 if any(trial is not None for _, trial in pairs) else 1)
+
+
+def animation(cfg, demo, adapted, unadapted):
+    """The demo's animation: the demonstration, and the policy before and after adapting in one new scene,
+    side by side, the targets ringed. cfg: the WorldConfig. Returns T PIL images."""
+    demo_target, radius = target_pixels(demo["scene"], cfg)
+    trial_target, _ = target_pixels(adapted["scene"], cfg)        # the same scene before and after adapting
+    name = palette.colour_name(demo["scene"].target_colour, cfg.palette)
+    titles = [f"demonstration\n{name}", f"before adapting\n{outcome(unadapted)}",
+              f"after adapting\n{outcome(adapted)}"]
+    return viz.side_by_side([demo["images"], unadapted["images"], adapted["images"]], titles,
+                            targets=[demo_target, trial_target, trial_target], radius=radius)
 
 
 def main(argv=None):
@@ -50,7 +137,7 @@ def main(argv=None):
         print(f"no meta-trained policy at {args.checkpoint}; train one with "
               f"`python -m oneshot.train --profile default --run runs/default` and pass "
               f"--checkpoint runs/default/checkpoint.npz")
-        viz.save_atomically(viz.filmstrip([d["images"] for d in list(demos.values())[:4]]),
+        viz.save_atomically(film_strip(world.config, [(d, None) for d in list(demos.values())[:SHOWN_COLOURS]]),
                             os.path.join(args.out, "expert_demos.png"))
         return None
     params, cfg = checkpoint.policy_params(ckpt), ckpt["config"]
@@ -62,29 +149,37 @@ def main(argv=None):
           f"{'meta-learnt per element' if cfg.learn_alpha else cfg.alpha} on {cfg.inner_params} parameters (eq. 1)")
     print(f"3. Run it in {args.trials} new scenes per colour (new positions, new distractors)")
     wins = base_wins = 0
-    rows, labels, gif = [], [], None
+    trials = {}                                            # (colour's position i, trial j) -> (adapted, unadapted)
     for i, (colour, d) in enumerate(demos.items()):
         demo = imitation.prepare_demos(d["images"], d["states"], d["actions"], max_torque)
         adapted = imitation.adapt(params, demo, cfg.alpha, cfg.inner_steps, inner_only(cfg))
         for j in range(args.trials):
             seed = imitation.trial_seed(args.seed, i, j)       # trial scenes, seeded as in `oneshot.evaluate`
-            r = imitation.rollout(adapted, world, seed, colour)
-            wins += r["success"]
-            base_wins += imitation.rollout(params, world, seed, colour)["success"]
-            if j == 0 and len(rows) < 8:
-                rows += [d["images"], r["images"]]
-                labels += [f"demo {colour}", f"policy {'ok' if r['success'] else 'miss'}"]
-                gif = r["images"] if gif is None and r["success"] else gif
+            trials[i, j] = (imitation.rollout(adapted, world, seed, colour),
+                            imitation.rollout(params, world, seed, colour))   # the same scene, unadapted
+            wins += trials[i, j][0]["success"]
+            base_wins += trials[i, j][1]["success"]
     n = len(demos) * args.trials
     lo, hi = wilson_interval(wins, n)
     print(f"\none-shot success on held-out colours: {wins}/{n} = {wins / n:.2f} (95% CI {lo:.2f}-{hi:.2f})")
     print(f"the same policy without adaptation:   {base_wins}/{n} = {base_wins / n:.2f}")
+
+    # 4. Pictures: a film strip of demos and adapted trials (a failure among them if there was one),
+    #    and one scene played by the demo, the unadapted and the adapted policy.
+    outcomes, unadapted_outcomes = (np.array([[outcome(trials[i, j][k]) for j in range(args.trials)]
+                                              for i in range(len(demos))]) for k in (0, 1))   # (colours, trials)
+    shown = shown_trials(outcomes == "reached", SHOWN_COLOURS)
     strip = os.path.join(args.out, "one_shot.png")
-    viz.save_atomically(viz.filmstrip(rows, labels=labels), strip)
-    print(f"wrote {strip} (each demo above the adapted policy's trial in a new scene)")
-    if gif is not None:
-        viz.save_gif(gif, os.path.join(args.out, "one_shot_trial.gif"))
-        print(f"wrote {os.path.join(args.out, 'one_shot_trial.gif')}")
+    demo_list = list(demos.values())
+    viz.save_atomically(film_strip(world.config, [(demo_list[i], trials[i, j][0]) for i, j in shown]), strip)
+    failures = sum(not trials[i, j][0]["success"] for i, j in shown)
+    print(f"wrote {strip} (each demo above the adapted policy's trial in a new scene; "
+          f"{len(shown) - failures} reached, {failures} missed)")
+    i, j = contrast_trial(outcomes, unadapted_outcomes)
+    gif = os.path.join(args.out, "one_shot_trial.gif")
+    viz.save_gif(animation(world.config, demo_list[i], *trials[i, j]), gif)
+    name = palette.colour_name(list(demos)[i], world.config.palette)
+    print(f"wrote {gif} ({name}, trial {j}: the demo, and the policy before and after adapting in the same new scene)")
     return {"successes": wins, "trials": n, "unadapted_successes": base_wins}
 
 

@@ -1,37 +1,142 @@
-"""Pictures: film strips (PNG) and animations (GIF) of episodes, with Pillow only."""
+"""Pictures: film strips (PNG) and animations (GIF) of episodes, with Pillow only.
+
+A frame is what the policy sees, (H, W, 3) uint8 (32x32 by default). Pictures show it `scale` times
+larger, each pixel a block, and can mark the target disc in every frame with a dashed white ring:
+white is no disc's colour (the palette's colours are all saturated), and the dashes tell the ring from
+the white arm. Target positions are in frame pixels, as `oneshot.render.world_to_pixels` gives them.
+Every function here takes arrays and returns new PIL images; only the `save_*` functions write files.
+"""
 import os
 
 import numpy as np
-from PIL import Image, ImageDraw
+from PIL import Image, ImageDraw, ImageFont
 
 from oneshot.data import atomic_write
 
+BACKGROUND = (40, 40, 40)      # between tiles and behind text
+TEXT = (235, 235, 235)
+MARK = (255, 255, 255)         # the target ring
 
-def filmstrip(rows, every=2, scale=4, labels=None, gap=2):
-    """Tile episodes into one picture, one row each.
 
-    rows: list of (T, H, W, 3) uint8 frame stacks (equal H, W); every: keep every n-th frame (the last
-    is always kept); labels: optional text per row, drawn at its left. Returns a PIL image.
+def font(size=14):
+    """Pillow's default font at `size` pixels (Pillow >= 10.1 with FreeType), else its small bitmap font."""
+    try:
+        return ImageFont.load_default(size=size)
+    except (TypeError, OSError, ImportError):      # older Pillow (no size argument) or no FreeType
+        return ImageFont.load_default()
+
+
+def marked_frame(frame, scale=4, target=None, radius=3.0, dashes=12):
+    """One frame enlarged, with the target ringed.
+
+    frame: (H, W, 3) uint8; target: (x, y) in frame pixels, or None for no ring; radius: the ring's
+    radius in frame pixels. Returns a PIL image of W scale x H scale pixels, each frame pixel a
+    scale x scale block, with a white ring of `dashes` dashes around scale * target.
     """
-    strips = []
-    for frames in rows:
-        idx = sorted(set(range(0, len(frames), every)) | {len(frames) - 1})
-        tiles = [np.pad(frames[i], ((gap, gap), (gap, gap), (0, 0)), constant_values=40) for i in idx]
-        strips.append(np.concatenate(tiles, axis=1))
-    width = max(s.shape[1] for s in strips)
-    strips = [np.pad(s, ((0, 0), (0, width - s.shape[1]), (0, 0))) for s in strips]
-    image = Image.fromarray(np.concatenate(strips, axis=0))
-    image = image.resize((image.width * scale, image.height * scale), Image.NEAREST)
-    if labels:
-        margin = 9 * max(len(label) for label in labels) + 8
-        canvas = Image.new("RGB", (image.width + margin, image.height), (40, 40, 40))
-        canvas.paste(image, (margin, 0))
+    frame = np.asarray(frame)
+    if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
+        raise ValueError(f"a frame must be (H, W, 3) uint8; got {frame.shape} {frame.dtype}")
+    tile = Image.fromarray(np.repeat(np.repeat(frame, scale, axis=0), scale, axis=1))
+    if target is not None:
+        x, y, r = target[0] * scale, target[1] * scale, radius * scale
+        draw, step = ImageDraw.Draw(tile), 360 / dashes
+        for k in range(dashes):                    # dash k spans angles [k step, (k + 1/2) step], clockwise
+            draw.arc([x - r, y - r, x + r, y + r], k * step, (k + 0.5) * step, fill=MARK,
+                     width=max(1, scale // 2))
+    return tile
+
+
+def _text_size(draw, text, typeface):
+    left, top, right, bottom = draw.multiline_textbbox((0, 0), text, font=typeface)
+    return right, bottom
+
+
+def filmstrip(rows, every=2, scale=4, labels=None, gap=6, targets=None, radius=3.0, swatches=None,
+              group=1, font_size=18):
+    """Tile episodes into one picture: a row per episode, a column per kept time step.
+
+    rows: R frame stacks (T, H, W, 3) uint8 (equal H, W); every: keep every n-th frame (the last is
+    always kept), numbered "t = 0", "t = 2", ... above the first row; labels: R strings ("\\n" breaks
+    lines), drawn at each row's left; swatches: R RGB colours, each a small disc before its label;
+    targets: R target positions (x, y) in frame pixels (or None: no ring in that row), ringed in every
+    frame (`marked_frame`, ring radius `radius` frame pixels); group: rows per group, groups set apart
+    by an extra 2 gap pixels. Returns a PIL image of width margin + gap + C (W scale + gap) and height
+    header + gap + R (H scale + gap) + 2 gap (number of groups - 1), where C is the longest row's
+    column count and the margin fits the widest label (0 without labels).
+    """
+    if not rows:
+        raise ValueError("filmstrip needs at least one row of frames")
+    for name, per_row in (("labels", labels), ("targets", targets), ("swatches", swatches)):
+        if per_row is not None and len(per_row) != len(rows):
+            raise ValueError(f"filmstrip got {len(rows)} rows but {len(per_row)} {name}")
+    h, w = rows[0].shape[1:3]
+    columns = [sorted(set(range(0, len(frames), every)) | {len(frames) - 1}) for frames in rows]
+    widest = max(columns, key=len)
+    typeface = font(font_size)
+    measure = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    dot = font_size if swatches is not None else 0       # swatch diameter, pixels
+    margin = 0
+    if labels is not None:
+        margin = max(_text_size(measure, label, typeface)[0] for label in labels) + dot + (dot and gap) + 2 * gap
+    header = _text_size(measure, "t = 0", typeface)[1] + 2 * gap
+    tile_w, tile_h = w * scale + gap, h * scale + gap
+    n_groups = -(-len(rows) // group)
+    canvas = Image.new("RGB", (margin + gap + len(widest) * tile_w,
+                               header + gap + len(rows) * tile_h + 2 * gap * (n_groups - 1)), BACKGROUND)
+    draw = ImageDraw.Draw(canvas)
+    for c, t in enumerate(widest):                         # time steps above the first row
+        draw.text((margin + gap + c * tile_w + w * scale / 2, header), f"t = {t}", fill=TEXT,
+                  font=typeface, anchor="md")
+    for r, frames in enumerate(rows):
+        top = header + gap + r * tile_h + 2 * gap * (r // group)
+        target = None if targets is None else targets[r]
+        for c, t in enumerate(columns[r]):
+            canvas.paste(marked_frame(frames[t], scale, target, radius), (margin + gap + c * tile_w, top))
+        if labels is not None:
+            text_w, text_h = _text_size(draw, labels[r], typeface)
+            middle = top + h * scale / 2
+            if swatches is not None:
+                draw.ellipse([gap, middle - dot / 2, gap + dot, middle + dot / 2],
+                             fill=tuple(int(v) for v in swatches[r]))
+            draw.multiline_text((gap + dot + (dot and gap), middle - text_h / 2), labels[r], fill=TEXT,
+                                font=typeface, spacing=4)
+    return canvas
+
+
+def side_by_side(episodes, titles, targets=None, radius=3.0, scale=6, gap=6, font_size=14):
+    """Frames of an animation playing episodes side by side: a titled panel per episode, the time step
+    below.
+
+    episodes: P frame stacks (T, H, W, 3) uint8 of equal shape; titles: P strings ("\\n" breaks lines);
+    targets: P target positions (x, y) in frame pixels (or None), ringed in every frame. Returns T PIL
+    images, each gap + P (W scale + gap) wide and header + H scale + footer high.
+    """
+    shapes = {np.shape(e) for e in episodes}
+    if len(shapes) != 1:
+        raise ValueError(f"side_by_side needs frame stacks of one shape (T, H, W, 3); got {sorted(shapes)}")
+    if len(titles) != len(episodes) or (targets is not None and len(targets) != len(episodes)):
+        raise ValueError(f"side_by_side got {len(episodes)} episodes but {len(titles)} titles"
+                         + ("" if targets is None else f" and {len(targets)} targets"))
+    n_steps, h, w = np.shape(episodes[0])[:3]
+    typeface = font(font_size)
+    measure = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    header = max(_text_size(measure, title, typeface)[1] for title in titles) + 2 * gap
+    footer = _text_size(measure, "t = 0", typeface)[1] + 2 * gap
+    panel = w * scale + gap
+    images = []
+    for t in range(n_steps):
+        canvas = Image.new("RGB", (gap + len(episodes) * panel, header + h * scale + footer), BACKGROUND)
         draw = ImageDraw.Draw(canvas)
-        row_h = image.height / len(labels)
-        for r, label in enumerate(labels):
-            draw.text((4, r * row_h + row_h / 2 - 5), label, fill=(255, 255, 255))
-        image = canvas
-    return image
+        for p, frames in enumerate(episodes):
+            x = gap + p * panel
+            draw.multiline_text((x + w * scale / 2, header - gap), titles[p], fill=TEXT, font=typeface,
+                                anchor="md", align="center", spacing=4)
+            canvas.paste(marked_frame(frames[t], scale, None if targets is None else targets[p], radius),
+                         (x, header))
+        draw.text((canvas.width / 2, header + h * scale + gap), f"t = {t} of {n_steps - 1}", fill=TEXT,
+                  font=typeface, anchor="ma")
+        images.append(canvas)
+    return images
 
 
 def save_atomically(image, path, **kwargs):
@@ -40,7 +145,8 @@ def save_atomically(image, path, **kwargs):
         image.save(f, format=os.path.splitext(path)[1][1:].upper().replace("JPG", "JPEG"), **kwargs)
 
 
-def save_gif(frames, path, scale=6, ms_per_frame=100):
-    """An animated GIF of frames (T, H, W, 3) uint8."""
-    images = [Image.fromarray(f).resize((f.shape[1] * scale, f.shape[0] * scale), Image.NEAREST) for f in frames]
-    save_atomically(images[0], path, save_all=True, append_images=images[1:], duration=ms_per_frame, loop=0)
+def save_gif(images, path, ms_per_frame=150, hold_last_ms=1500):
+    """An animated GIF of PIL images (e.g. `side_by_side`'s), looping; the last one stays up
+    `hold_last_ms` so the outcome can be seen."""
+    durations = [ms_per_frame] * (len(images) - 1) + [hold_last_ms]
+    save_atomically(images[0], path, save_all=True, append_images=images[1:], duration=durations, loop=0)

@@ -272,6 +272,11 @@ def test_demo_adapts_a_checkpoint_and_reports_counts(tiny, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "one-shot success on held-out colours" in out and "expert success: 12/12" in out
     assert (tmp_path / "out" / "one_shot.png").exists()
+    # the animation: one frame per time step, the demo and the policy before and after adapting side by side
+    from PIL import Image
+    from oneshot.world import WorldConfig
+    with Image.open(tmp_path / "out" / "one_shot_trial.gif") as gif:
+        assert gif.n_frames == WorldConfig().horizon and gif.width > 3 * gif.height / 2
 
 
 def test_maml_benchmark_reports_the_settings_it_timed(capsys):
