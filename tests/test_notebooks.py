@@ -1,79 +1,84 @@
-"""The teaching notebooks, run headless without Jupyter, and checked on what they compute.
+"""The teaching notebooks, run in a real Jupyter kernel and checked on what they compute.
 
-Each notebook's code cells are executed in order in one namespace, as a kernel would, with the working
-directory set to a temporary folder (nothing is written into the repository) and matplotlib on its
-non-interactive Agg backend. IPython-only lines (`%magic`, `!shell`) are skipped. A cell that raises
-fails the test, naming the notebook and the cell; then the variables the notebook leaves behind are
-checked: the expert's demo succeeded, the meta-gradient passed its finite-difference check, the
-meta-loss fell, and so on.
+Each notebook runs from top to bottom in a fresh IPython kernel (nbclient and ipykernel), as a
+student's Jupyter runs it, with the working directory a temporary folder (nothing is written into
+the repository), matplotlib on its non-interactive backend (MPLBACKEND=Agg), and `oneshot` imported
+from where this test imports it. A cell with an error output fails the test, naming the notebook, the
+cell and the error. The test sets nothing else in the kernel: notebook 3 sets its own BLAS threads,
+visibly. Then one code cell that the test appends prints, as JSON, the values the notebook computed,
+and the test checks them: the expert's demo succeeded, the meta-gradient passed its finite-difference
+check, the meta-loss fell, and so on. The exercise notebooks (notebooks/exercises/) run with each
+cell tagged `exercise-N` replaced by the reference solution of exercise N.
 """
+import importlib
 import json
-import sys
+import os
+import re
 from pathlib import Path
 
+import nbformat
 import numpy as np
 import pytest
+from nbclient import NotebookClient
+from nbclient.exceptions import CellExecutionError
 
-from oneshot import host
-
-try:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-except ImportError:
-    plt = None
+import oneshot
+from oneshot import demo
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
+EXERCISE_NOTEBOOKS = sorted((NOTEBOOKS / "exercises").glob("*.ipynb"))
+CELL_TIMEOUT = 600        # seconds for one cell; all the notebooks together take well under a minute
+ADDED = "added_by_test"   # metadata flag of the cells the test adds
 
 
-def code_cells(name):
-    """The code cells of a notebook: list of (source, tags)."""
-    nb = json.loads((NOTEBOOKS / name).read_text())
-    return [("".join(c["source"]), c.get("metadata", {}).get("tags", []))
-            for c in nb["cells"] if c["cell_type"] == "code"]
+def kernel_env():
+    """The kernel's environment: this process's, with matplotlib's Agg backend, and `oneshot` found
+    where this test found it (the same checkout, whether installed or not)."""
+    package_parent = str(Path(oneshot.__file__).resolve().parent.parent)
+    path = os.pathsep.join(p for p in (package_parent, os.environ.get("PYTHONPATH")) if p)
+    return dict(os.environ, MPLBACKEND="Agg", PYTHONPATH=path)
 
 
-def python_only(source):
-    """Replace IPython-only lines (`%matplotlib inline`, `!pip ...`) by `pass`, keeping indentation."""
-    lines = []
-    for line in source.splitlines():
-        stripped = line.lstrip()
-        lines.append(line[:len(line) - len(stripped)] + "pass" if stripped.startswith(("%", "!")) else line)
-    return "\n".join(lines)
+def added_cell(source):
+    return nbformat.v4.new_code_cell(source, metadata={ADDED: True})
 
 
-def run_cells(name, cells, namespace):
-    for i, (source, _) in enumerate(cells):
-        try:
-            exec(compile(python_only(source), f"<{name}, code cell {i}>", "exec"), namespace)
-        except Exception as e:
-            raise AssertionError(f"{name}: code cell {i} raised {type(e).__name__}: {e}") from e
-        finally:
-            if plt is not None:
-                plt.close("all")
-    return namespace
+def execute(nb, name, folder, first=None, values=None):
+    """Run notebook `nb` (nbformat) in a fresh kernel, working directory `folder`.
 
-
-def run_notebook(name):
-    return run_cells(name, code_cells(name), {"__name__": "__main__"})
-
-
-@pytest.fixture(autouse=True)
-def in_temporary_folder(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
-
-
-@pytest.fixture(autouse=True)
-def one_blas_thread():
-    """Run the notebooks with one BLAS thread, then restore the count. When the cores are busy, OpenBLAS's
-    spinning threads make small matrix products crawl: on the 2-core machine while two trainings ran,
-    notebook 3 took 36 s with 2 BLAS threads and 4.7 s with 1. (A no-op where host cannot reach the BLAS.)"""
-    before = host.blas_threads(1)
+    first: code the test runs in a cell before the notebook's first one. values: the source of a
+    dict expression over the notebook's variables; a cell appended after the last one prints it as
+    JSON (its last line of output). Returns (the notebook with its outputs, that dict or None).
+    """
+    cells = list(nb.cells)
+    nb.cells = ([added_cell(first)] if first else []) + cells
+    if values:
+        nb.cells.append(added_cell(f"import json\nprint(json.dumps({values}))"))
+    client = NotebookClient(nb, timeout=CELL_TIMEOUT, kernel_name="python3",
+                            resources={"metadata": {"path": str(folder)}})
     try:
-        yield
-    finally:
-        if before is not None:
-            host.blas_threads(before)
+        client.execute(env=kernel_env())
+    except CellExecutionError as e:
+        failed = next((c for c in nb.cells if any(o.output_type == "error" for o in c.get("outputs", []))), None)
+        if failed is None or failed.metadata.get(ADDED):
+            where = "a cell the test added"
+        else:
+            where = f"cell {cells.index(failed)} (id {failed.get('id')!r}, counting markdown cells)"
+        traceback = re.sub(r"\x1b\[[0-9;]*m", "", str(e))             # without the terminal colours
+        raise AssertionError(f"{name}: {where} raised {e.ename}: {e.evalue}\n\n{traceback}") from None
+    errors = [c.get("id") for c in nb.cells if any(o.output_type == "error" for o in c.get("outputs", []))]
+    assert not errors, f"{name}: error output in cells {errors} (tagged raises-exception?)"
+    return nb, (json.loads(stdout(nb.cells[-1]).strip().splitlines()[-1]) if values else None)
+
+
+def stdout(*cells):
+    """Everything the cells printed to stdout."""
+    return "".join(o.text for c in cells for o in c.get("outputs", [])
+                   if o.output_type == "stream" and o.name == "stdout")
+
+
+def run_notebook(name, folder, first=None, values=None):
+    return execute(nbformat.read(NOTEBOOKS / name, as_version=4), name, folder, first, values)
 
 
 def test_notebooks_are_committed_without_outputs():
@@ -83,55 +88,110 @@ def test_notebooks_are_committed_without_outputs():
         nb = json.loads((NOTEBOOKS / name).read_text())
         assert nb["nbformat"] == 4 and nb["cells"][0]["cell_type"] == "markdown"
         assert "Section" in "".join(nb["cells"][0]["source"]), f"{name}: the title cell names no paper section"
-        for cell in nb["cells"]:
+    for path in [NOTEBOOKS / name for name in names] + EXERCISE_NOTEBOOKS:
+        nb = json.loads(path.read_text())
+        assert nb["nbformat"] == 4, f"{path.name}: nbformat {nb['nbformat']}, not 4"
+        for i, cell in enumerate(nb["cells"]):
             if cell["cell_type"] == "code":
                 assert cell["outputs"] == [] and cell["execution_count"] is None, \
-                    f"{name}: clear the outputs before committing (cell {cell['id']})"
+                    f"{path.name}: clear the outputs before committing (cell {cell.get('id', i)})"
 
 
-def test_world_and_expert():
-    ns = run_notebook("01_world_and_expert.ipynb")
-    assert ns["demo"]["success"] and ns["final_mm"] < 50                # the expert reached the disc
-    history = np.array(ns["plan"].cost_history)
-    assert ns["plan"].converged and np.all(np.diff(history) <= 0) and history[-1] < 0.5 * history[0]
-    assert ns["gap"].max() < 0.03                                        # model tracks Pymunk ...
-    assert ns["gap_fine"].max() < 0.7 * ns["gap"].max()                  # ... closer with finer substeps
-    assert ns["final_mm"] < ns["open_loop_mm"]                           # the feedback gains help
-    assert ns["dataset"]["images"].shape == (2, 2, 20, 32, 32, 3) and ns["round_trip_ok"]
+WORLD_VALUES = """{
+    "demo_success": bool(demo["success"]), "final_mm": float(final_mm), "plan_converged": bool(plan.converged),
+    "cost_history": [float(c) for c in plan.cost_history], "gap": [float(g) for g in gap],
+    "gap_fine": [float(g) for g in gap_fine], "open_loop_mm": float(open_loop_mm),
+    "dataset_images_shape": list(dataset["images"].shape), "round_trip_ok": bool(round_trip_ok),
+    "plt_is_none": plt is None}"""
 
 
-def test_world_notebook_runs_without_matplotlib_or_ipython(monkeypatch, capsys):
-    for module in ("matplotlib", "matplotlib.pyplot", "IPython", "IPython.display"):
-        monkeypatch.setitem(sys.modules, module, None)                   # makes `import` raise ImportError
-    ns = run_notebook("01_world_and_expert.ipynb")
-    assert ns["plt"] is None and ns["demo"]["success"]
-    assert "install matplotlib to see it" in capsys.readouterr().out
+def test_world_and_expert(tmp_path):
+    _, v = run_notebook("01_world_and_expert.ipynb", tmp_path, values=WORLD_VALUES)
+    assert v["demo_success"] and v["final_mm"] < 50                    # the expert reached the disc
+    history = np.array(v["cost_history"])
+    assert v["plan_converged"] and np.all(np.diff(history) <= 0) and history[-1] < 0.5 * history[0]
+    gap, gap_fine = np.array(v["gap"]), np.array(v["gap_fine"])
+    assert gap.max() < 0.03                                             # model tracks Pymunk ...
+    assert gap_fine.max() < 0.7 * gap.max()                             # ... closer with finer substeps
+    assert v["final_mm"] < v["open_loop_mm"]                            # the feedback gains help
+    assert tuple(v["dataset_images_shape"]) == (2, 2, 20, 32, 32, 3) and v["round_trip_ok"]
 
 
-def test_maml():
-    ns = run_notebook("02_maml.ipynb")
-    assert ns["loss_after_one_step"] < ns["loss_before_step"]            # eq. (1) lowers the task's loss
-    assert ns["fd_relative_error"] < 1e-6                                # second order = finite differences
-    assert ns["first_order_relative_error"] > 100 * ns["fd_relative_error"]
-    assert ns["batched_matches_loop"]
-    assert ns["meta_loss_after"] < 0.6 * ns["meta_loss_before"]          # meta-training works on new sines
-    assert ns["n_params"] == 125_202 and ns["flops_per_frame"] == pytest.approx(3.05e6, rel=0.01)
-    assert ns["actions"].shape == (20, 2)
+# Run first in the kernel: as if neither matplotlib nor IPython were installed (a kernel is IPython,
+# so its own modules stay loaded; the notebook's `import`s of them raise ImportError).
+WITHOUT_PLOTS = """import sys
+for module in ("matplotlib", "matplotlib.pyplot", "IPython", "IPython.display"):
+    sys.modules[module] = None"""
 
 
-def test_one_shot_imitation(tmp_path, monkeypatch):
-    cells = code_cells("03_one_shot_imitation.ipynb")
-    ns = run_cells("03_one_shot_imitation.ipynb", cells, {"__name__": "__main__"})
-    assert ns["loss_adapted"] < ns["loss_before"]                        # eq. (1) on eq. (2) fits the demo
-    assert ns["probe_after"] < ns["probe_before"]                        # a few meta-iterations help
-    assert isinstance(ns["trial"]["success"], bool) and ns["trial"]["images"].shape == (20, 32, 32, 3)
-    # The pre-trained branch, on a stand-in checkpoint (the notebook's own few-iteration policy), so it
-    # is exercised before a real one ships in oneshot/pretrained/.
-    from oneshot import checkpoint, config, demo, network, optim
-    path = tmp_path / "stand_in.npz"
-    checkpoint.save(path, ns["params"], optim.adam_init(ns["params"]), 8, np.random.default_rng(0),
-                          config.TrainConfig(), network.NetworkConfig())
-    monkeypatch.setattr(demo, "PRETRAINED", str(path))
-    ns = run_cells("03 (pre-trained cell)", [c for c in cells if "pretrained" in c[1]], ns)
-    assert ns["pretrained_loss_adapted"] < ns["pretrained_loss_before"]
-    assert len(ns["pretrained_trials"]) == ns["N_TRIALS"]
+def test_world_notebook_runs_without_matplotlib_or_ipython(tmp_path):
+    nb, v = run_notebook("01_world_and_expert.ipynb", tmp_path, first=WITHOUT_PLOTS, values=WORLD_VALUES)
+    assert v["plt_is_none"] and v["demo_success"]
+    assert "install matplotlib to see it" in stdout(*nb.cells)
+
+
+def test_maml(tmp_path):
+    _, v = run_notebook("02_maml.ipynb", tmp_path, values="""{
+        "loss_before_step": float(loss_before_step), "loss_after_one_step": float(loss_after_one_step),
+        "fd_relative_error": float(fd_relative_error), "first_order_relative_error": float(first_order_relative_error),
+        "batched_matches_loop": bool(batched_matches_loop),
+        "meta_loss_before": float(meta_loss_before), "meta_loss_after": float(meta_loss_after),
+        "n_params": n_params, "flops_per_frame": float(flops_per_frame), "actions_shape": list(actions.shape)}""")
+    assert v["loss_after_one_step"] < v["loss_before_step"]            # eq. (1) lowers the task's loss
+    assert v["fd_relative_error"] < 1e-6                                # second order = finite differences
+    assert v["first_order_relative_error"] > 100 * v["fd_relative_error"]
+    assert v["batched_matches_loop"]
+    assert v["meta_loss_after"] < 0.6 * v["meta_loss_before"]          # meta-training works on new sines
+    assert v["n_params"] == 125_202 and v["flops_per_frame"] == pytest.approx(3.05e6, rel=0.01)
+    assert tuple(v["actions_shape"]) == (20, 2)
+
+
+def test_one_shot_imitation(tmp_path):
+    # The pre-trained cells run on the shipped policy, as a student's do.
+    assert os.path.exists(demo.PRETRAINED), f"the shipped policy {demo.PRETRAINED} is missing"
+    _, v = run_notebook("03_one_shot_imitation.ipynb", tmp_path, values="""{
+        "loss_before": float(loss_before), "loss_adapted": float(loss_adapted),
+        "probe_before": float(probe_before), "probe_after": float(probe_after),
+        "trial_success_is_bool": isinstance(trial["success"], bool), "trial_images_shape": list(trial["images"].shape),
+        "pretrained_loss_before": pretrained_loss_before, "pretrained_loss_adapted": pretrained_loss_adapted,
+        "pretrained_trials": len(pretrained_trials), "N_TRIALS": N_TRIALS,
+        "blas_threads": host.blas_threads(1)}""")   # returns the count the notebook left (its `host`)
+    assert v["loss_adapted"] < v["loss_before"]                        # eq. (1) on eq. (2) fits the demo
+    assert v["probe_after"] < v["probe_before"]                        # a few meta-iterations help
+    assert v["trial_success_is_bool"] and tuple(v["trial_images_shape"]) == (20, 32, 32, 3)
+    assert v["pretrained_loss_adapted"] < v["pretrained_loss_before"]  # adapting the shipped policy fits the demo
+    assert v["pretrained_trials"] == v["N_TRIALS"]
+    assert v["blas_threads"] in (1, None)                              # the notebook set one BLAS thread
+
+
+def exercise_number(cell):
+    """N if the code cell is tagged `exercise-N`, else None."""
+    numbers = [int(tag[len("exercise-"):]) for tag in cell.metadata.get("tags", [])
+               if re.fullmatch(r"exercise-\d+", tag)]
+    assert len(numbers) <= 1, f"cell {cell.get('id')!r} is tagged with several exercises: {numbers}"
+    return numbers[0] if numbers else None
+
+
+@pytest.mark.parametrize("path", [pytest.param(p, id=p.name) for p in EXERCISE_NOTEBOOKS] or
+                         [pytest.param(None, marks=pytest.mark.skip(reason="no notebooks in notebooks/exercises/"))])
+def test_exercise_notebook_with_the_reference_solutions(path, tmp_path):
+    try:
+        exercises = importlib.import_module("oneshot.exercises")
+    except ModuleNotFoundError as e:
+        if e.name != "oneshot.exercises":
+            raise
+        pytest.skip("oneshot.exercises (the reference solutions) cannot be imported: it does not exist")
+    nb = nbformat.read(path, as_version=4)
+    solved = {}                                          # exercise number -> the function's name
+    for cell in nb.cells:
+        n = exercise_number(cell) if cell.cell_type == "code" else None
+        if n is not None:
+            solved[n] = exercises.EXERCISES[n].name
+            cell.source = f"from oneshot.exercises import reference\n{solved[n]} = reference({n})"
+    assert solved, f"{path.name}: no code cell is tagged exercise-N"
+    # The notebook's own check cells run on the solutions; then the test asks the checker itself.
+    nb.cells.append(added_cell("from oneshot.exercises import check"))
+    verdicts = "{" + ", ".join(f'"{n}": check({n}, {name}).passed' for n, name in solved.items()) + "}"
+    _, passed = execute(nb, f"exercises/{path.name}", tmp_path, values=verdicts)
+    assert all(passed.values()), \
+        f"{path.name}: the reference solutions fail the checks of exercises {[n for n, ok in passed.items() if not ok]}"

@@ -1,0 +1,49 @@
+"""Exercises on MIL, each a function the student writes, with a checker that says what is wrong.
+
+Ten exercises cover the paper's parts in reading order (`python -m oneshot.exercises list`):
+
+    1-3   the world and the expert (Section IV): the success criterion, the arm's kinematics and
+          Jacobian, one iLQG backward-pass step             notebooks/exercises/01_world_and_expert.ipynb
+    4-7   the network and MAML (Sections II-IV): im2col convolution, eq. (2), eq. (1), second- and
+          first-order meta-gradients                        notebooks/exercises/02_network_and_maml.ipynb
+    8-10  the baselines and evaluation (Section IV): the contextual input, the Wilson interval, an
+          LSTM step                                         notebooks/exercises/03_baselines.ipynb
+
+From a notebook: `check(5, imitation_loss)` prints one line, "exercise 5 (eq. 2, the imitation loss):
+correct" or "exercise 5: not yet: <the first difference, in words>", and returns a `Result` (passed,
+message). The checker runs the function on random and edge-case inputs and compares it with the
+package's own function (`oneshot.imitation.imitation_loss` here); when it differs, it names the known
+mistake that explains the difference, if one does. `EXERCISES[n]` says what exercise n asks for;
+`reference(n)` is its reference solution (for teachers; `oneshot/exercises/solutions.py`).
+From a shell: `python -m oneshot.exercises check 5 --file my_solution.py`, and `grade DIR` for a
+class (`oneshot/exercises/__main__.py`).
+"""
+from oneshot.exercises import checks_baselines, checks_maml, checks_network, checks_world
+from oneshot.exercises.catalogue import EXERCISES
+from oneshot.exercises.checking import Exercise, Result, run
+from oneshot.exercises.solutions import SOLUTIONS
+
+CHECKERS = {**checks_world.CHECKERS, **checks_network.CHECKERS, **checks_maml.CHECKERS, **checks_baselines.CHECKERS}
+
+__all__ = ["EXERCISES", "Exercise", "Result", "check", "reference"]
+
+
+def _exercise(number):
+    if number not in EXERCISES:
+        raise ValueError(f"there is no exercise {number!r}; the exercises are {min(EXERCISES)}-{max(EXERCISES)}")
+    return EXERCISES[number]
+
+
+def check(number, function, quiet=False):
+    """Check the student's `function` for exercise `number`: print the verdict (unless quiet) and return
+    a Result (passed: bool, message: "correct" or the first difference in words). Never raises on the
+    student's account: a function that raises or returns the wrong shape is reported in words."""
+    result = run(_exercise(number), CHECKERS[number], function)
+    if not quiet:
+        print(result.line)
+    return result
+
+
+def reference(number):
+    """The reference solution (a function) of exercise `number`."""
+    return SOLUTIONS[_exercise(number).number]

@@ -1,0 +1,345 @@
+"""The exercises (oneshot/exercises/): every checker passes its reference solution and names the
+mistake in answers a student could write (written here, not taken from the checkers' own lists);
+functions that raise, return the wrong shape or change their inputs are reported, not crashed on; the
+command line checks a file and grades a folder with a timeout; the notebooks follow the convention
+their test relies on (tag `exercise-N` on the stub cell) and run both as stubs and with solutions."""
+import dataclasses
+import json
+from pathlib import Path
+
+import autograd.numpy as anp
+import numpy as np
+import pytest
+from autograd import grad
+
+from oneshot import ilqg
+from oneshot.exercises import EXERCISES, check, reference
+from oneshot.exercises.__main__ import main
+from oneshot.network import forward
+
+NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks" / "exercises"
+
+
+def message(number, function):
+    result = check(number, function, quiet=True)
+    assert not result.passed
+    return result.message
+
+
+@pytest.mark.parametrize("number", sorted(EXERCISES))
+def test_every_reference_solution_is_correct(number, capsys):
+    result = check(number, reference(number))
+    assert result.passed and result.message == "correct"
+    assert capsys.readouterr().out == f"exercise {number} ({EXERCISES[number].title}): correct\n"
+
+
+def test_exercises_are_small_frozen_records_numbered_1_to_10():
+    assert sorted(EXERCISES) == list(range(1, 11))
+    assert EXERCISES[5].name == "imitation_loss" and EXERCISES[5].section == "III" and "eq. (2)" in EXERCISES[5].doc
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        EXERCISES[5].name = "other"
+    with pytest.raises(ValueError, match="exercises are 1-10"):
+        reference(11)
+
+
+# ----- wrong answers a student could write, and the words the checker must say -----
+
+def _fifth(e):
+    e = np.asarray(e)
+    return e[-max(1, len(e) // 5):]
+
+
+def _kinematics(first, second, transpose=False):
+    def kinematics(q, l1, l2):
+        a1, a2 = first(q), second(q)
+        p = np.stack([l1 * np.cos(a1) + l2 * np.cos(a2), l1 * np.sin(a1) + l2 * np.sin(a2)], -1)
+        J = np.stack([np.stack([-l1 * np.sin(a1) - l2 * np.sin(a2), -l2 * np.sin(a2)], -1),
+                      np.stack([l1 * np.cos(a1) + l2 * np.cos(a2), l2 * np.cos(a2)], -1)], -2)
+        return p, np.swapaxes(J, -1, -2) if transpose else J
+    return kinematics
+
+
+def _backward_step(bvb=True, mu_identity=False, K_sign=-1):
+    def backward_step(Vx, Vxx, A, B, lx, lu, lxx, luu, lux, mu):
+        Quu = luu + (B.T @ Vxx @ B if bvb else 0)
+        Qux = lux + B.T @ Vxx @ A
+        Quu_r = Quu + (mu * np.eye(len(lu)) if mu_identity else mu * B.T @ B)
+        Qux_r = Qux + (0 if mu_identity else mu * B.T @ A)
+        k, K = -np.linalg.solve(Quu_r, lu + B.T @ Vx), K_sign * np.linalg.solve(Quu_r, Qux_r)
+        Qx, Qxx = lx + A.T @ Vx, lxx + A.T @ Vxx @ A
+        return (k, K, Qx + K.T @ Quu @ k + K.T @ (lu + B.T @ Vx) + Qux.T @ k,
+                Qxx + K.T @ Quu @ K + K.T @ Qux + Qux.T @ K)
+    return backward_step
+
+
+def _conv(pad=True, stride_used=True, channel_first=False):
+    def conv2d(x, w, b, stride):
+        s, k = (stride if stride_used else 1), w.shape[0]
+        p = k // 2 if pad else 0
+        x = np.pad(x, ((0, 0), (p, p), (p, p), (0, 0)))
+        h_out, w_out = (x.shape[1] - k) // s + 1, (x.shape[2] - k) // s + 1
+        out = np.empty((x.shape[0], h_out, w_out, w.shape[-1]))
+        for i in range(h_out):
+            for j in range(w_out):
+                patch = x[:, s * i:s * i + k, s * j:s * j + k, :]
+                patch = patch.transpose(0, 3, 1, 2) if channel_first else patch
+                out[:, i, j] = patch.reshape(len(x), -1) @ w.reshape(-1, w.shape[-1]) + b
+        return out
+    return conv2d
+
+
+def _loss(reduce):
+    def imitation_loss(params, demo):
+        images, states, actions = demo
+        return reduce(forward(params, images, states) - actions)
+    return imitation_loss
+
+
+def _inner(sign=-1, everything=False, step=lambda alpha: alpha):
+    def inner_update(params, demo, loss_fn, alpha, only=None):
+        g = grad(loss_fn)(params, demo)
+        adapt = lambda k: everything or only is None or any(k.startswith(o) for o in only)
+        return {k: v + sign * step(alpha) * g[k] if adapt(k) else v for k, v in params.items()}
+    return inner_update
+
+
+def _meta(second_order=True, adapt=True):
+    def meta_gradients(w, alpha, adapt_demo, eval_demo):
+        (xa, ya), (xe, ye) = adapt_demo, eval_demo
+        w2 = w - alpha * 2 * np.sum(xa * (w * xa - ya)) if adapt else w
+        first = 2 * np.sum(xe * (w2 * xe - ye))
+        return first * (1 - 2 * alpha * np.sum(xa ** 2) if second_order else 1), first
+    return meta_gradients
+
+
+def _context(frame=-1, axis=-1):
+    def contextual_input(images, demo_images):
+        context = np.repeat(demo_images[..., frame:frame + 1 or None, :, :, :], images.shape[-4], axis=-4)
+        return np.concatenate([images, context], axis=axis)
+    return contextual_input
+
+
+def _wald(successes, trials, z=1.96):
+    p = successes / trials
+    half = z * np.sqrt(p * (1 - p) / trials)
+    return max(0.0, p - half), min(1.0, p + half)
+
+
+def _lstm(gate, forget=True):
+    def lstm_step(w_h, xw, h, c):
+        i, f, g, o = np.split(xw + h @ w_h, 4, axis=-1)
+        c2 = (gate(f) * c if forget else c) + gate(i) * np.tanh(g)
+        return gate(o) * np.tanh(c2), c2
+    return lstm_step
+
+
+sigmoid = lambda x: 1 / (1 + np.exp(-x))
+WRONG = [
+    (1, lambda e, t, r=0.05: bool(np.linalg.norm(np.asarray(e) - t, axis=-1).min() <= r),
+     ["whole episode", "final fifth"]),
+    (1, lambda e, t, r=0.05: bool(np.linalg.norm(np.asarray(e)[-1] - t) <= r), ["last step only"]),
+    (1, lambda e, t, r=0.05: bool(np.linalg.norm(_fifth(e) - t, axis=-1).min() < r), ["strict <"]),
+    (2, _kinematics(lambda q: q[..., 1], lambda q: q[..., 0] + q[..., 1]), ["swapped the joint angles"]),
+    (2, _kinematics(lambda q: q[..., 0], lambda q: q[..., 1]), ["q1 + q2, not q2"]),
+    (2, _kinematics(lambda q: q[..., 0], lambda q: q[..., 0] + q[..., 1], transpose=True), ["Jacobian is transposed"]),
+    (3, _backward_step(bvb=False), ["lacks the term B^T V_xx B"]),
+    (3, _backward_step(mu_identity=True), ["regularised Q_uu with mu I", "regularises V_xx"]),
+    (3, _backward_step(K_sign=+1), ["K has the wrong sign"]),
+    (4, _conv(pad=False), ["did not pad", "k // 2"]),
+    (4, _conv(channel_first=True), ["(channel, dy, dx)"]),
+    (4, _conv(stride_used=False), ["ignored the stride"]),
+    (5, _loss(lambda r: anp.mean(anp.sum(r ** 2, axis=1))), ["1/T", "sums over frames, it does not average"]),
+    (5, _loss(lambda r: anp.sum(anp.abs(r))), ["without squaring"]),
+    (5, _loss(lambda r: anp.sum(r[:, 0] ** 2)), ["first torque only"]),
+    (6, _inner(sign=+1), ["UP the gradient"]),
+    (6, _inner(everything=True), ["updated every parameter"]),
+    (6, _inner(step=lambda alpha: alpha ** 2), ["alpha^2"]),
+    (6, _inner(step=lambda alpha: 1.0), ["lacks alpha"]),
+    (7, _meta(second_order=False), ["equals the first-order one"]),
+    (7, _meta(adapt=False), ["gradient at w", "ADAPTED"]),
+    (8, _context(frame=0), ["FIRST image"]),
+    (8, _context(axis=0), ["frame axis"]),
+    (9, _wald, ["Wald"]),
+    (9, lambda s, n, z=1.96: reference(9)(s, n), ["z = 1.96 whatever z is given"]),
+    (10, _lstm(np.tanh), ["sigmoids"]),
+    (10, _lstm(sigmoid, forget=False), ["forget gate"]),
+]
+
+
+@pytest.mark.parametrize("number, function, words", WRONG, ids=[f"{n}-{i}" for i, (n, _, _) in enumerate(WRONG)])
+def test_checker_names_the_mistake(number, function, words):
+    text = message(number, function)
+    for word in words:
+        assert word in text, text
+
+
+def test_at_least_two_different_mistakes_per_exercise():
+    for number in EXERCISES:
+        assert len({id(f) for n, f, _ in WRONG if n == number}) >= 2
+
+
+# ----- functions that raise, return the wrong shape, or change their inputs -----
+
+def _wrong_shape(number):
+    """The reference, its result mangled into the wrong shape: one value too many or an extra axis."""
+    def mangle(result):
+        if isinstance(result, dict):
+            return list(result.values())
+        if isinstance(result, tuple):
+            return result[:1]
+        if isinstance(result, (bool, np.bool_)):
+            return np.array([result, result])
+        return np.asarray(result)[None]
+    return lambda *args: mangle(reference(number)(*args))
+
+
+@pytest.mark.parametrize("number", sorted(EXERCISES))
+def test_functions_that_raise_or_return_the_wrong_shape_are_reported(number):
+    def raises(*args):
+        raise ZeroDivisionError("division by zero")
+    assert f"your {EXERCISES[number].name} raised ZeroDivisionError: division by zero on " in message(number, raises)
+    text = message(number, _wrong_shape(number))
+    assert any(w in text for w in ("has shape", "expected a tuple of", "expected True or False", "expected a dict",
+                                   "expected a single number")), text
+    stub = lambda *args: (_ for _ in ()).throw(NotImplementedError)
+    assert message(number, stub) == f"{EXERCISES[number].name} is not written yet (it raises NotImplementedError)"
+
+
+def test_a_function_that_changes_its_input_is_told_so():
+    def imitation_loss(params, demo):
+        params["out_b"] += 1.0
+        return reference(5)(params, demo)
+    assert "changed its argument `params` in place" in message(5, imitation_loss)
+    assert "expected a function" in message(5, 3.0)
+
+
+def test_a_loss_autograd_cannot_differentiate_is_told_so():
+    def imitation_loss(params, demo):        # right value, plain NumPy: grad fails
+        images, states, actions = demo
+        return float(np.sum((np.asarray(forward(params, images, states)) - actions) ** 2))
+    assert "autograd cannot differentiate your loss" in message(5, imitation_loss)
+
+
+def test_the_step_is_checked_against_ilqg_backward_pass_on_one_step():
+    rng = np.random.default_rng(0)
+    n, m = 4, 2
+    spd = lambda k: (lambda M: M @ M.T + np.eye(k))(rng.normal(size=(k, k)))
+    Vx, Vxx, A, B = rng.normal(size=n), spd(n), rng.normal(size=(n, n)), rng.normal(size=(n, m))
+    lx, lu, lxx, luu, lux = rng.normal(size=n), rng.normal(size=m), spd(n), spd(m), rng.normal(size=(m, n))
+    k, K, _, _ = reference(3)(Vx, Vxx, A, B, lx, lu, lxx, luu, lux, 0.3)
+    k1, K1, _ = ilqg.backward_pass(A[None], B[None], np.stack([lx, Vx]), lu[None], np.stack([lxx, Vxx]),
+                                   luu[None], lux[None], 0.3)
+    np.testing.assert_allclose(k, k1[0], rtol=1e-10)
+    np.testing.assert_allclose(K, K1[0], rtol=1e-10)
+
+
+# ----- the command line -----
+
+RIGHT_1 = """
+import numpy as np
+def is_success(end_effector, target, success_radius=0.05):
+    e = np.asarray(end_effector)
+    return bool(np.linalg.norm(e[-max(1, len(e) // 5):] - target, axis=-1).min() <= success_radius)
+"""
+WRONG_1 = RIGHT_1.replace("e[-max(1, len(e) // 5):]", "e")
+RIGHT_9 = """
+import math
+def wilson_interval(successes, trials, z=1.96):
+    if trials == 0:
+        return 0.0, 1.0
+    p, n = successes / trials, trials
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+"""
+
+
+def test_cli_check_exit_statuses(tmp_path, capsys):
+    (tmp_path / "right.py").write_text(RIGHT_1)
+    (tmp_path / "wrong.py").write_text(WRONG_1)
+    (tmp_path / "raises.py").write_text("def is_success(e, t, r=0.05):\n    return 1 / 0\n")
+    (tmp_path / "broken.py").write_text("def is_success(:\n")
+    assert main(["check", "1", "--file", str(tmp_path / "right.py")]) == 0
+    assert capsys.readouterr().out == "exercise 1 (Sec. IV, the success criterion): correct\n"
+    assert main(["check", "1", "--file", str(tmp_path / "wrong.py")]) == 1
+    assert capsys.readouterr().out.startswith("exercise 1: not yet: you judge the whole episode")
+    assert main(["check", "1", "--file", str(tmp_path / "raises.py")]) == 1
+    assert "raised ZeroDivisionError" in capsys.readouterr().out
+    for number, file, words in [(1, "missing.py", "no such file"),
+                                (5, "right.py", "defines no function imitation_loss"),
+                                (1, "broken.py", "could not load broken.py: SyntaxError"),
+                                (12, "right.py", "there is no exercise 12")]:
+        assert main(["check", str(number), "--file", str(tmp_path / file)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and words in err, err
+    assert main(["list"]) == 0
+    assert "def imitation_loss(params, demo)" in capsys.readouterr().out
+
+
+def test_cli_grade_survives_wrong_raising_looping_and_broken_submissions(tmp_path, capsys):
+    (tmp_path / "alice.py").write_text(RIGHT_1 + RIGHT_9)
+    (tmp_path / "bob.py").write_text(WRONG_1 + "\ndef imitation_loss(params, demo):\n    raise RuntimeError('oops')\n")
+    (tmp_path / "carol.py").write_text("def is_success(e, t, r=0.05):\n    while True:\n        pass\n" + RIGHT_9)
+    (tmp_path / "dave.py").write_text("def is_success(:\n")
+    assert main(["--grade", str(tmp_path), "--timeout", "3", "--jobs", "4"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    verdict = lambda who, n: next(line.split(None, 2)[2] for line in lines if line.split()[:2] == [who, str(n)])
+    assert verdict("alice.py", 1) == "correct" and verdict("alice.py", 9) == "correct"
+    assert verdict("alice.py", 5) == "missing"
+    assert verdict("bob.py", 1).startswith("not yet: you judge the whole episode")
+    assert verdict("bob.py", 5) == "not yet: your imitation_loss raised RuntimeError: oops on a 5-frame demo"
+    assert verdict("carol.py", 1) == "timed out after 3 s (an endless loop?)"
+    assert verdict("carol.py", 9) == "correct"                     # graded after the loop was killed
+    assert "could not load dave.py: SyntaxError" in next(line for line in lines if line.startswith("dave.py"))
+    totals = [line.split(None, 2)[2] for line in lines if line.split()[1] == "total"]
+    assert totals == ["2/10 correct, 2 attempted", "0/10 correct, 2 attempted", "1/10 correct, 2 attempted",
+                      "0/10 correct, 0 attempted"]
+    assert main(["grade", str(tmp_path / "nobody")]) == 2
+
+
+# ----- the notebooks -----
+
+def notebook_cells():
+    """(notebook, cell) for every cell of the exercise notebooks."""
+    return [(path.name, cell) for path in sorted(NOTEBOOKS.glob("*.ipynb"))
+            for cell in json.loads(path.read_text())["cells"]]
+
+
+def test_notebooks_follow_the_convention():
+    names = sorted(p.name for p in NOTEBOOKS.glob("*.ipynb"))
+    assert names == ["01_world_and_expert.ipynb", "02_network_and_maml.ipynb", "03_baselines.ipynb"]
+    for name in names:
+        nb = json.loads((NOTEBOOKS / name).read_text())
+        assert nb["nbformat"] == 4 and nb["cells"][0]["cell_type"] == "markdown"
+        assert "Section" in "".join(nb["cells"][0]["source"])
+    cells = notebook_cells()
+    assert len({c["id"] for _, c in cells}) == len(cells)
+    tagged = {}
+    for name, cell in cells:
+        if cell["cell_type"] == "code":
+            assert cell["outputs"] == [] and cell["execution_count"] is None, f"{name}: clear the outputs"
+        for tag in cell["metadata"].get("tags", []):
+            tagged.setdefault(int(tag.removeprefix("exercise-")), []).append("".join(cell["source"]))
+    assert sorted(tagged) == sorted(EXERCISES) and all(len(v) == 1 for v in tagged.values())
+    for number, [source] in tagged.items():
+        assert source == EXERCISES[number].stub.rstrip("\n")    # the stub, no solution
+    sources = ["".join(c["source"]) for _, c in cells]
+    for number, e in EXERCISES.items():
+        assert f"check({number}, {e.name})" in sources
+
+
+@pytest.mark.parametrize("filled", [False, True], ids=["stubs", "solutions"])
+def test_notebooks_run_as_stubs_and_with_the_solutions_filled_in(filled, capsys):
+    for path in sorted(NOTEBOOKS.glob("*.ipynb")):
+        namespace = {"__name__": "__main__"}
+        for cell in json.loads(path.read_text())["cells"]:
+            tags = [t for t in cell["metadata"].get("tags", []) if t.startswith("exercise-")]
+            source = "".join(cell["source"])
+            if tags and filled:
+                number = int(tags[0].removeprefix("exercise-"))
+                source = f"from oneshot.exercises import reference\n{EXERCISES[number].name} = reference({number})"
+            if cell["cell_type"] == "code":
+                exec(compile(source, f"<{path.name}>", "exec"), namespace)
+    verdicts = [line for line in capsys.readouterr().out.splitlines() if line.startswith("exercise ")]
+    assert len(verdicts) == 10
+    assert all(line.endswith(": correct") if filled else "not written yet" in line for line in verdicts)
