@@ -86,12 +86,12 @@ def relative_cost(label):
 @dataclass(frozen=True)
 class SweepConfig:
     """A Figure 2 sweep: every method x size x seed. The defaults are the "paper" profile: 5 sizes from
-    192 to 5184 demonstrations (27x), 3 seeds, 5000 meta-iterations per run."""
+    192 to 5184 demonstrations (27x), 3 seeds, 6000 meta-iterations per run."""
     name: str = "paper"
     sizes: tuple = ((24, 8), (36, 12), (72, 12), (144, 16), (324, 16))  # (colours, demos per colour)
     methods: tuple = METHODS
     seeds: tuple = (0, 1, 2)
-    iterations: int = 5000                 # meta-iterations per run
+    iterations: int = 6000                 # meta-iterations per run
     trials: int = 10                       # trials per held-out colour (10 x 12 colours: 120 trials)
     palette_mode: str = "grid"             # oneshot.palette.PaletteConfig(mode=...): enough colours for 324
     eval_seed: int = 0                     # seed of the held-out trial scenes: the same for every run
@@ -178,8 +178,9 @@ def run_config(spec, context):
 def run_one(spec, run_dir, context):
     """Train (or resume) one run in run_dir and score it on context["trials"] trials per held-out
     colour (`imitation.one_shot_success`, trial seed 0: the same scenes for every run).
-    Returns {"wall_seconds", "successes", "trials"} (wall_seconds adds up every sitting), and for the
-    random policy the torque std it picked (the `notes` column)."""
+    Returns {"wall_seconds", "successes", "trials"} (wall_seconds adds up every sitting) and, for the
+    `notes` column, the successes per held-out colour, for MIL the unadapted policy's successes in the
+    same scenes, and for the random policy the torque std it picked."""
     host.tune_malloc()
     host.blas_threads(1)                                   # several runs share the cores
     cfg = run_config(spec, context)
@@ -190,12 +191,18 @@ def run_one(spec, run_dir, context):
     train.train(cfg, run_dir, resume=resume, progress=False)
     ckpt = checkpoint.load(os.path.join(run_dir, "checkpoint.npz"))
     heldout = data.load(context["heldout_data"])
-    condition = methods.conditioner(cfg, checkpoint.policy_params(ckpt), seed=context["eval_seed"])
-    r = imitation.one_shot_success(condition, heldout, context["trials"], context["eval_seed"], progress=False)
+    params = checkpoint.policy_params(ckpt)
+    score = lambda adapt: imitation.one_shot_success(methods.conditioner(cfg, params, adapt, context["eval_seed"]),
+                                                     heldout, context["trials"], context["eval_seed"], progress=False)
+    r = score(True)
+    notes = {"per_colour": {str(c): round(rate * context["trials"]) for c, rate in r["per_colour"].items()}}
+    if cfg.method == "mil":
+        notes["unadapted_successes"] = score(False)["successes"]     # the same scenes, without eq. (1)
+    if cfg.method == "random":
+        notes["std"] = round(float(params["std"][0]), 6)
     spent += time.perf_counter() - t0
     with data.atomic_write(clock) as f:
         f.write(json.dumps(spent).encode())
-    notes = {"std": round(float(ckpt["params"]["std"][0]), 6)} if cfg.method == "random" else {}
     return {"wall_seconds": round(spent, 1), "successes": r["successes"], "trials": r["trials"], **notes}
 
 # --- command line ------------------------------------------------------------------------------------
