@@ -9,7 +9,8 @@ colour) with one seed, then scored on the same held-out trials:
     python -m oneshot.experiments fig2 --profile paper --local-cluster 4   # Dask, pip install ".[cluster]"
     python -m oneshot.experiments fig2 --profile paper --scheduler tcp://host:8786
 
-It writes `docs/results/fig2_<profile>/`: runs.csv (one row per finished run), summary.json (per method
+It writes `oneshot/results/fig2_<profile>/` (`RESULTS`, shipped with the package, so that notebook 04 and
+`load_results` find it wherever the package is installed): runs.csv (one row per finished run), summary.json (per method
 and size: the mean over seeds, a 95% Wilson interval on the pooled trials, the range over seeds) and
 fig2.png (pip install ".[plots]"). Each run works in `runs/fig2/<run id>/` (profiles share the folder:
 the run id names everything a run depends on, so a run two profiles share is done once). Run the same
@@ -34,7 +35,7 @@ from oneshot import checkpoint, collect, data, host, imitation, methods, train
 from oneshot.config import PROFILES as PROFILES_TRAIN
 from oneshot.expert import ExpertConfig
 from oneshot.palette import PaletteConfig
-from oneshot.sweep import PLOTS, RunSpec, SweepLocked, plot, summarise, sweep, write_summary
+from oneshot.sweep import PLOTS, RunSpec, read_rows, SweepLocked, plot, summarise, sweep, write_summary
 from oneshot.world import WorldConfig
 
 # Optional extras: the sweep runs without them and says which one a flag or the plot needs.
@@ -42,6 +43,16 @@ try:
     import distributed                         # pip install ".[cluster]": --scheduler, --local-cluster
 except ImportError:
     distributed = None
+
+RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")   # the committed results
+
+
+def load_results(profile, results=RESULTS):
+    """The committed results of a Figure 2 sweep: (rows of runs.csv, summary.json as a dict)."""
+    folder = os.path.join(results, f"fig2_{profile}")
+    with open(os.path.join(folder, "summary.json")) as f:
+        return read_rows(os.path.join(folder, "runs.csv")), json.load(f)
+
 
 def _default(**changes):
     return dataclasses.replace(PROFILES_TRAIN["default"], **changes)
@@ -86,12 +97,12 @@ def relative_cost(label):
 @dataclass(frozen=True)
 class SweepConfig:
     """A Figure 2 sweep: every method x size x seed. The defaults are the "paper" profile: 5 sizes from
-    192 to 5184 demonstrations (27x), 3 seeds, 6000 meta-iterations per run."""
+    192 to 5184 demonstrations (27x), 3 seeds, 10000 meta-iterations per run (the default profile's)."""
     name: str = "paper"
     sizes: tuple = ((24, 8), (36, 12), (72, 12), (144, 16), (324, 16))  # (colours, demos per colour)
     methods: tuple = METHODS
     seeds: tuple = (0, 1, 2)
-    iterations: int = 6000                 # meta-iterations per run
+    iterations: int = 10000                # meta-iterations per run: as long as the shipped policy trains
     trials: int = 10                       # trials per held-out colour (10 x 12 colours: 120 trials)
     palette_mode: str = "grid"             # oneshot.palette.PaletteConfig(mode=...): enough colours for 324
     eval_seed: int = 0                     # seed of the held-out trial scenes: the same for every run
@@ -233,7 +244,7 @@ def main(argv=None):
     commands = p.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
     f = commands.add_parser("fig2", help="one-shot success vs. meta-training dataset size, per method")
     f.add_argument("--profile", choices=sorted(PROFILES), default="quick", help="named sweep (default: quick)")
-    f.add_argument("--out", default=None, help="results folder (default: docs/results/fig2_<profile>)")
+    f.add_argument("--out", default=None, help="results folder (default: oneshot/results/fig2_<profile>)")
     f.add_argument("--work", default=os.path.join("runs", "fig2"), help="runs' work folders (default: runs/fig2)")
     f.add_argument("--data", default="data/fig2", help="datasets folder, given to every run (default: data/fig2)")
     f.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -251,7 +262,7 @@ def main(argv=None):
     if (args.scheduler or args.local_cluster) and distributed is None:
         f.error(f"{'--scheduler' if args.scheduler else '--local-cluster'} needs Dask: pip install \".[cluster]\"")
     cfg = PROFILES[args.profile]
-    out = args.out or os.path.join("docs", "results", f"fig2_{cfg.name}")
+    out = args.out or os.path.join(RESULTS, f"fig2_{cfg.name}")
     work = args.work
     runs = plan(cfg)
     ensure_data(cfg, args.data, progress=not args.no_progress)

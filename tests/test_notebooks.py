@@ -7,13 +7,18 @@ from where this test imports it. A cell with an error output fails the test, nam
 cell and the error. The test sets nothing else in the kernel: notebook 3 sets its own BLAS threads,
 visibly. Then one code cell that the test appends prints, as JSON, the values the notebook computed,
 and the test checks them: the expert's demo succeeded, the meta-gradient passed its finite-difference
-check, the meta-loss fell, and so on. The exercise notebooks (notebooks/exercises/) run with each
-cell tagged `exercise-N` replaced by the reference solution of exercise N.
+check, the meta-loss fell, and so on. Notebook 4 reads the committed results of the Figure 2
+experiment (oneshot/results/); while none are committed, it reads a tiny sweep the test makes (seconds)
+with the experiment's own command, in the same format. The exercise notebooks (notebooks/exercises/)
+run with each cell tagged `exercise-N` replaced by the reference solution of exercise N.
 """
 import importlib
 import json
 import os
 import re
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import nbformat
@@ -23,7 +28,7 @@ from nbclient import NotebookClient
 from nbclient.exceptions import CellExecutionError
 
 import oneshot
-from oneshot import demo
+from oneshot import demo, experiments, palette
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
 EXERCISE_NOTEBOOKS = sorted((NOTEBOOKS / "exercises").glob("*.ipynb"))
@@ -83,7 +88,8 @@ def run_notebook(name, folder, first=None, values=None):
 
 def test_notebooks_are_committed_without_outputs():
     names = sorted(p.name for p in NOTEBOOKS.glob("*.ipynb"))
-    assert names == ["01_world_and_expert.ipynb", "02_maml.ipynb", "03_one_shot_imitation.ipynb"]
+    assert names == ["01_world_and_expert.ipynb", "02_maml.ipynb", "03_one_shot_imitation.ipynb",
+                     "04_experiments.ipynb"]
     for name in names:
         nb = json.loads((NOTEBOOKS / name).read_text())
         assert nb["nbformat"] == 4 and nb["cells"][0]["cell_type"] == "markdown"
@@ -162,6 +168,100 @@ def test_one_shot_imitation(tmp_path):
     assert v["pretrained_loss_adapted"] < v["pretrained_loss_before"]  # adapting the shipped policy fits the demo
     assert v["pretrained_trials"] == v["N_TRIALS"]
     assert v["blas_threads"] in (1, None)                              # the notebook set one BLAS thread
+
+
+@pytest.fixture(scope="module")
+def fig2_results(tmp_path_factory):
+    """The results folder notebook 4 reads: the committed one (experiments.RESULTS) when it holds a
+    Figure 2 sweep, else a folder made here with `python -m oneshot.experiments fig2 --profile tiny` (20
+    runs of 2 meta-iterations: seconds), in the committed format, as fig2_quick. Its copy as fig2_search
+    stands in for the hyperparameter search, so that the notebook's search table runs too."""
+    if any(os.path.exists(os.path.join(experiments.RESULTS, f"fig2_{p}", "summary.json")) for p in ("paper", "quick")):
+        return Path(experiments.RESULTS)
+    folder = tmp_path_factory.mktemp("fig2")
+    results = folder / "results"
+    command = [sys.executable, "-m", "oneshot.experiments", "fig2", "--profile", "tiny", "--no-progress",
+               "--out", str(results / "fig2_quick"), "--work", str(folder / "work"), "--data", str(folder / "data")]
+    done = subprocess.run(command, cwd=folder, env=kernel_env(), capture_output=True, text=True)
+    assert done.returncode == 0, f"the tiny Figure 2 sweep failed:\n{done.stderr}"
+    shutil.copytree(results / "fig2_quick", results / "fig2_search")
+    return results
+
+
+def with_results(results):
+    """Notebook 4, its first code cell's `RESULTS = ...` line pointing at `results`."""
+    nb = nbformat.read(NOTEBOOKS / "04_experiments.ipynb", as_version=4)
+    first = next(c for c in nb.cells if c.cell_type == "code")
+    first.source, n = re.subn(r"^RESULTS = .*$", f"RESULTS = {str(results)!r}", first.source, flags=re.M)
+    assert n == 1, "notebook 4's first code cell must set RESULTS on one line `RESULTS = ...`"
+    return nb
+
+
+EXPERIMENT_VALUES = """{
+    "results": RESULTS, "profile": PROFILE, "methods": ORDER, "sizes": SIZES, "rows": len(rows),
+    "adaptation": adaptation, "inner_loops": [[size, a["successes"], b["successes"]] for size, a, b in inner_loops],
+    "per_colour": per_colour, "search_table": search_table, "live": live, "ITERATIONS": ITERATIONS,
+    "plt_is_none": plt is None}"""
+
+
+def test_experiments(fig2_results, tmp_path):
+    _, v = execute(with_results(fig2_results), "04_experiments.ipynb", tmp_path, values=EXPERIMENT_VALUES)
+    profile = "paper" if (fig2_results / "fig2_paper" / "summary.json").exists() else "quick"
+    rows, summary = experiments.load_results(profile, results=str(fig2_results))
+    assert v["results"] == str(fig2_results) and v["profile"] == profile
+    # Section 2: every method and size the summary holds, and every run.
+    points = {(m, p["size"]): p for m, ps in summary["methods"].items() for p in ps}
+    assert sorted(v["methods"]) == sorted(summary["methods"]) and v["rows"] == len(rows) == summary["runs"]
+    assert v["sizes"] == sorted({size for _, size in points})
+    # Section 3: adapted vs unadapted, for exactly the MIL methods; the adapted counts, pooled from the
+    # rows, are the summary's; the unadapted ones are counts of the same trials.
+    mil = {m for m in summary["methods"] if experiments.METHOD_CONFIGS[m].method == "mil"}
+    assert set(v["adaptation"]) == mil
+    for method, by_size in v["adaptation"].items():
+        assert sorted(map(int, by_size)) == sorted(p["size"] for p in summary["methods"][method])
+        for size, (adapted, unadapted, trials) in by_size.items():
+            p = points[method, int(size)]
+            assert (adapted, trials) == (p["successes"], p["trials"]) and 0 <= unadapted <= trials
+    # Section 4: one line per size both inner loops were run at, with the summary's counts.
+    both = sorted({p["size"] for p in summary["methods"].get("mil", [])} &
+                  {p["size"] for p in summary["methods"].get("mil-paper", [])})
+    assert [line[0] for line in v["inner_loops"]] == both
+    assert all([a, b] == [points["mil", s]["successes"], points["mil-paper", s]["successes"]]
+               for s, a, b in v["inner_loops"])
+    # Section 5: the per-colour counts add up to the summary's at each method's largest size, and are
+    # of held-out colours of the grid palette.
+    recorded = {r["method"] for r in rows if "per_colour" in json.loads(r["notes"])}
+    assert set(v["per_colour"]) == recorded
+    heldout = set(palette.split_colours("heldout", palette.PaletteConfig(mode="grid")).tolist())
+    for method, counts in v["per_colour"].items():
+        largest = max((p for p in summary["methods"][method]), key=lambda p: p["size"])
+        assert [sum(c[0] for c in counts.values()), sum(c[1] for c in counts.values())] == \
+            [largest["successes"], largest["trials"]]
+        assert {int(c) for c in counts} <= heldout
+    # Section 6: one line per variant and size of the search, if there is one.
+    search = fig2_results / "fig2_search" / "summary.json"
+    if search.exists():
+        variants = json.loads(search.read_text())["methods"]
+        assert len(v["search_table"]) == sum(len(ps) for ps in variants.values())
+    else:
+        assert v["search_table"] is None
+    # Section 7: every method of the figure ran; the trained ones' losses are finite and the fixed probe
+    # meta-batch's loss fell; one trial per held-out colour (2).
+    assert list(v["live"]) == list(experiments.METHODS)
+    for method, r in v["live"].items():
+        assert r["trials"] == 2 and 0 <= r["successes"] <= r["trials"]
+        if method == "random":
+            assert r["std"] in experiments.METHOD_CONFIGS["random"].random_stds
+        else:
+            assert len(r["history"]) == v["ITERATIONS"] and np.all(np.isfinite(r["history"]))
+            assert np.isfinite(r["probe_before"]) and r["probe_after"] < r["probe_before"], method
+
+
+def test_experiments_notebook_runs_without_matplotlib(fig2_results, tmp_path):
+    nb, v = execute(with_results(fig2_results), "04_experiments.ipynb", tmp_path, first=WITHOUT_PLOTS,
+                    values=EXPERIMENT_VALUES)
+    assert v["plt_is_none"] and len(v["live"]) == len(experiments.METHODS)
+    assert "install matplotlib to see the figure" in stdout(*nb.cells)
 
 
 def exercise_number(cell):
