@@ -215,6 +215,8 @@ class ReachWorld:
 
     def render(self):
         """The current image, (H, W, 3) uint8."""
+        if self._space is None:
+            raise RuntimeError("call reset() before render()")
         cfg = self.config
         return render.render(self.joints(), self.scene.positions, self._rgb[self.scene.colours],
                              arena_half_width=cfg.arena_half_width, size=cfg.image_size,
@@ -225,7 +227,9 @@ class ReachWorld:
                 "joint_velocities": self.joint_velocities, "end_effector": self.joints()[2]}
 
     def _info(self):
-        return {"scene": self.scene, "target_position": self.scene.target_position,
+        # Copies, so a caller writing into info["target_position"] cannot move the world's target.
+        scene = Scene(np.array(self.scene.colours), np.array(self.scene.positions), self.scene.target)
+        return {"scene": scene, "target_position": scene.target_position.copy(),
                 "success": is_success(self.end_effector_history, self.scene.target_position,
                                       self.config.success_radius)
                 if len(self.end_effector_history) == self.config.horizon else False}
@@ -257,6 +261,6 @@ class ReachWorld:
             self._space.step(hsub)
         self.t += 1
         obs = self._observation()
-        self.end_effector_history.append(obs["end_effector"])
+        self.end_effector_history.append(obs["end_effector"].copy())   # the caller may write into obs
         reward = -float(np.linalg.norm(obs["end_effector"] - self.scene.target_position))
         return obs, reward, False, self.t >= self.config.horizon, self._info()

@@ -146,3 +146,27 @@ def test_heldout_world_uses_only_heldout_colours():
     for seed in range(20):
         _, info = world.reset(seed=seed)
         assert set(info["scene"].colours.tolist()) <= held
+
+
+def test_writing_into_what_the_world_returns_changes_nothing_in_the_world():
+    """info holds copies of the scene and target; obs's end effector is not the array success is judged on."""
+    def run(vandal):
+        world = ReachWorld()
+        _, info = world.reset(seed=0)
+        if vandal:
+            info["target_position"][:] = 0.0
+            info["scene"].positions[:] = 0.0
+        for _ in range(world.config.horizon):
+            obs, reward, _, _, info = world.step(np.array([0.3, -0.2]))
+            if vandal:
+                obs["end_effector"][:] = info["target_position"]      # would fake a success if aliased
+        return world.scene.target_position.copy(), reward, info["success"]
+
+    assert run(False)[1:] == run(True)[1:] and np.array_equal(run(False)[0], run(True)[0])
+    assert run(True)[2] is False
+
+
+def test_render_before_reset_says_what_to_do():
+    with pytest.raises(RuntimeError, match=r"call reset\(\) before render\(\)"):
+        ReachWorld().render()
+
