@@ -23,7 +23,8 @@ import numpy as np
 from autograd import grad
 from tqdm import tqdm
 
-from oneshot import batched, collect, data, expert, host, imitation, layers, methods, network, optim, palette, shards
+from oneshot import (batched, cli, collect, data, expert, host, imitation, layers, methods, network, optim,
+                     palette, shards)
 from oneshot.config import INNER_PARAMS, METHODS, PROFILES, inner_only
 from oneshot.evaluate import wilson_interval
 from oneshot.world import ReachWorld, WorldConfig
@@ -256,42 +257,55 @@ def _sgemm_rate(n=1024, repeats=10):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m oneshot.benchmark", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = cli.Parser(prog="python -m oneshot.benchmark", description=__doc__,
+                   formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="what", required=True)
     e = sub.add_parser("expert", help="iLQG solve time and expert success rate")
-    e.add_argument("--scenes", type=int, default=500)
+    e.add_argument("--scenes", type=cli.positive_int, default=500)
     c = sub.add_parser("collect", help="time to collect demonstrations")
-    c.add_argument("--demos", type=int, default=1000)
-    c.add_argument("--workers", type=int, default=None)
+    c.add_argument("--demos", type=cli.positive_int, default=1000)
+    c.add_argument("--workers", type=cli.positive_int, default=None, help="processes (default and at most: the cores)")
     m = sub.add_parser("maml", help="seconds per second-order meta-iteration")
-    m.add_argument("--iterations", type=int, default=20)
+    m.add_argument("--iterations", type=cli.positive_int, default=20)
     m.add_argument("--profile", choices=sorted(PROFILES), default="default")
     m.add_argument("--method", choices=METHODS[:3], default=None,
                    help="time a baseline's iteration (same meta-batch, trunk and widths) instead of MIL's")
-    m.add_argument("--lstm-units", type=int, default=None, help="override the LSTM baseline's width")
+    m.add_argument("--lstm-units", type=cli.positive_int, default=None, help="override the LSTM baseline's width")
     m.add_argument("--first-order", action="store_true", help="time the first-order approximation")
-    m.add_argument("--inner-steps", type=int, default=None, help="override the profile's inner steps")
+    m.add_argument("--inner-steps", type=cli.non_negative_int, default=None, help="override the profile's inner steps")
     m.add_argument("--inner-params", choices=sorted(INNER_PARAMS), default=None,
                    help="override which parameters the inner steps adapt")
-    m.add_argument("--meta-batch", type=int, default=None, help="override the profile's meta-batch")
-    m.add_argument("--shards", type=int, default=None,
+    m.add_argument("--meta-batch", type=cli.positive_int, default=None, help="override the profile's meta-batch")
+    m.add_argument("--shards", type=cli.positive_int, default=None,
                    help="override the profile's shards (processes sharing each meta-gradient; 1 = one process)")
     m.add_argument("--breakdown", action="store_true",
                    help="instead: where the time of the training process's part goes (matrix products, "
                         "im2col/col2im, other layer primitives, autograd's Python)")
     v = sub.add_parser("privileged", help="ceiling: behavioural cloning given the target's position or colour")
     v.add_argument("--given", choices=("position", "colour"), default="colour")
-    v.add_argument("--steps", type=int, default=3000)
-    v.add_argument("--trials", type=int, default=60)
+    v.add_argument("--steps", type=cli.positive_int, default=3000)
+    v.add_argument("--trials", type=cli.positive_int, default=60)
     v.add_argument("--feature-points", action="store_true")
     v.add_argument("--train-data", default="data/train.npz")
-    v.add_argument("--seed", type=int, default=0)
+    v.add_argument("--seed", type=cli.non_negative_int, default=0)
     args = p.parse_args(argv)
+    world = WorldConfig()                    # the frames and images the benchmarks time
+    try:                                     # what must fit in memory, before the work
+        if args.what == "collect":
+            tasks = len(palette.split_colours("train"))
+            cli.check_memory(cli.dataset_bytes(tasks, -(-args.demos // tasks), world.horizon, world.image_size,
+                                               world.n_objects), f"{args.demos} demos", "use fewer --demos")
+        if args.what == "maml" and args.meta_batch:
+            cli.check_memory(2 * args.meta_batch * world.horizon * world.image_size ** 2 * 3 * 4,
+                             f"a meta-batch of {args.meta_batch} tasks (its synthetic images alone)",
+                             "use a smaller --meta-batch")
+    except ValueError as error:
+        sub.choices[args.what].error(str(error))
     if args.what == "expert":
         result = bench_expert(args.scenes)
     elif args.what == "collect":
-        result = bench_collect(args.demos, args.workers)
+        cores = os.cpu_count() or 1
+        result = bench_collect(args.demos, min(args.workers or cores, cores))
     elif args.what == "privileged":
         result = bench_privileged(args.given, args.steps, trials=args.trials, feature_points=args.feature_points,
                                   seed=args.seed, train_data=args.train_data)
@@ -311,4 +325,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    cli.run(main, failures=(shards.ShardError,))

@@ -14,7 +14,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from oneshot import data, expert, palette
+from oneshot import cli, data, expert, palette
 from oneshot.world import ReachWorld, WorldConfig
 
 MAX_ATTEMPTS = 10
@@ -105,33 +105,48 @@ class _Serial:
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m oneshot.collect", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", required=True, help="output .npz path (written atomically)")
+    p = cli.Parser(prog="python -m oneshot.collect", description=__doc__,
+                   formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", required=True, type=cli.writable_file,
+                   help="output .npz path (written atomically; checked before collecting)")
     p.add_argument("--split", choices=palette.SPLITS, default="train",
                    help="colours to draw tasks from: meta-training or held-out (default: train)")
-    p.add_argument("--tasks", type=int, default=36, help="number of tasks (distinct target colours)")
-    p.add_argument("--demos", type=int, default=8, help="demonstrations per task (at least 2)")
-    p.add_argument("--seed", type=int, default=0, help="seed; the same seed gives the same dataset")
-    p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
-    p.add_argument("--image-size", type=int, default=32, help="image side in pixels (32 or 64)")
-    p.add_argument("--horizon", type=int, default=20, help="time steps per demonstration")
-    p.add_argument("--noise", type=float, default=0.0,
+    p.add_argument("--tasks", type=cli.positive_int, default=36, help="number of tasks (distinct target colours)")
+    p.add_argument("--demos", type=cli.at_least(2, " (MAML adapts on one demo and scores another)"), default=8,
+                   help="demonstrations per task (at least 2)")
+    p.add_argument("--seed", type=cli.non_negative_int, default=0,
+                   help="seed; the same seed gives the same dataset")
+    p.add_argument("--workers", type=cli.positive_int, default=None,
+                   help="processes (default and at most: the cores, and the demos)")
+    p.add_argument("--image-size", type=cli.at_least(8), default=32, help="image side in pixels (32 or 64)")
+    p.add_argument("--horizon", type=cli.at_least(5, " (success is judged on the final fifth)"), default=20,
+                   help="time steps per demonstration")
+    p.add_argument("--noise", type=cli.finite_non_negative_float, default=0.0,
                    help="DART noise: std (N m) of torque noise executed but not recorded (default 0)")
     args = p.parse_args(argv)
+    # Everything that can be checked is checked before the work: the task count against the split,
+    # and that the dataset fits in memory (not after building a job list and allocating terabytes).
+    world_cfg = WorldConfig(image_size=args.image_size, horizon=args.horizon)
     try:
-        world_cfg = WorldConfig(image_size=args.image_size, horizon=args.horizon)
-        if args.noise < 0:
-            raise ValueError(f"--noise is a standard deviation in N m, so >= 0; got {args.noise}")
-        dataset = collect(args.tasks, args.demos, args.split, args.seed, args.workers, world_cfg,
-                          expert.ExpertConfig(action_noise=args.noise))
+        task_colours(args.tasks, args.split, args.seed, world_cfg.palette)
+    except ValueError as e:
+        p.error(f"argument --tasks: {e}")
+    try:
+        cli.check_memory(cli.dataset_bytes(args.tasks, args.demos, args.horizon, args.image_size, world_cfg.n_objects),
+                         f"{args.tasks} tasks x {args.demos} demos x {args.horizon} steps of "
+                         f"{args.image_size}x{args.image_size} images",
+                         "collect fewer --tasks or --demos, or use a smaller --horizon or --image-size")
     except ValueError as e:
         p.error(str(e))
+    cores = os.cpu_count() or 1
+    workers = min(args.workers or cores, cores, args.tasks * args.demos)   # more would only wait
+    dataset = collect(args.tasks, args.demos, args.split, args.seed, workers, world_cfg,
+                      expert.ExpertConfig(action_noise=args.noise))
     meta = data.save(dataset, args.out)
-    print(f"wrote {args.out}: {args.tasks} tasks x {args.demos} demos ({args.split} colours) in "
-          f"{meta['seconds']} s; expert success {meta['expert_success_rate']:.3f} "
-          f"({meta['failed_attempts']} failed attempts retried)")
+    print(f"wrote {args.out}: {args.tasks} tasks x {args.demos} demos ({args.split} colours) with {workers} "
+          f"process{'es' if workers > 1 else ''} in {meta['seconds']} s; expert success "
+          f"{meta['expert_success_rate']:.3f} ({meta['failed_attempts']} failed attempts retried)")
 
 
 if __name__ == "__main__":
-    main()
+    cli.run(main, failures=(RuntimeError,))    # RuntimeError: the expert failed every scene of a demo

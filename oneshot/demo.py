@@ -22,7 +22,7 @@ import os
 
 import numpy as np
 
-from oneshot import checkpoint, expert, imitation, palette, render, viz
+from oneshot import checkpoint, cli, expert, imitation, palette, render, viz
 from oneshot.config import inner_only
 from oneshot.evaluate import wilson_interval
 from oneshot.world import ReachWorld, WorldConfig, closest_object
@@ -111,14 +111,20 @@ def animation(cfg, demo, adapted, unadapted):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m oneshot.demo", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", default="demo_out", help="folder for the pictures (default: demo_out)")
-    p.add_argument("--checkpoint", default=PRETRAINED, help="meta-trained policy (default: the shipped one)")
-    p.add_argument("--trials", type=int, default=3, help="new scenes per held-out colour (default 3)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the demos and trial scenes")
+    p = cli.Parser(prog="python -m oneshot.demo", description=__doc__,
+                   formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", type=cli.writable_folder, default="demo_out",
+                   help="folder for the pictures (default: demo_out; checked before the work)")
+    p.add_argument("--checkpoint", default=None,
+                   help="meta-trained policy (default: the shipped one; without it, the expert's demos only)")
+    p.add_argument("--trials", type=cli.positive_int, default=3, help="new scenes per held-out colour (default 3)")
+    p.add_argument("--seed", type=cli.non_negative_int, default=0, help="seed of the demos and trial scenes")
     args = p.parse_args(argv)
-    ckpt = checkpoint.load(args.checkpoint) if os.path.exists(args.checkpoint) else None
+    if args.checkpoint is not None:                  # a checkpoint asked for must be there
+        ckpt = checkpoint.load(args.checkpoint)
+    else:                                            # the shipped one may be missing: the demos alone
+        args.checkpoint = PRETRAINED
+        ckpt = checkpoint.load(PRETRAINED) if os.path.exists(PRETRAINED) else None
     # Demos like the ones the policy was meta-trained on (with the same DART noise, if any).
     expert_cfg = expert.ExpertConfig(action_noise=ckpt["config"].demo_noise if ckpt else 0.0)
 
@@ -184,4 +190,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    cli.run(main)

@@ -9,10 +9,11 @@ import argparse
 import dataclasses
 import json
 import math
-import sys
+import os
 
-from oneshot import checkpoint, data, imitation, maml, methods, palette
+from oneshot import checkpoint, cli, data, imitation, maml, methods, palette
 from oneshot.config import METHODS, inner_only
+from oneshot.palette import PaletteConfig
 
 
 def wilson_interval(successes, trials, z=1.96):
@@ -58,26 +59,31 @@ def adaptation_gain(params, dataset, alpha=0.001, steps=3, pairs=5, only=None):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m oneshot.evaluate", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = cli.Parser(prog="python -m oneshot.evaluate", description=__doc__,
+                   formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoint", help="a checkpoint written by `python -m oneshot.train`")
-    p.add_argument("--heldout", default="data/heldout.npz", help="held-out demonstrations (.npz)")
+    p.add_argument("--heldout", default="data/heldout.npz", help="held-out demonstrations (.npz; '' to skip)")
     p.add_argument("--train", default="data/train.npz",
                    help="meta-training demonstrations, for the contrast (.npz; '' to skip)")
-    p.add_argument("--trials", type=int, default=10, help="trials per colour (default 10: 120 held-out trials)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the trial scenes")
+    p.add_argument("--trials", type=cli.positive_int, default=10,
+                   help="trials per colour (default 10: 120 held-out trials)")
+    p.add_argument("--seed", type=cli.non_negative_int, default=0, help="seed of the trial scenes")
     p.add_argument("--unadapted", action="store_true",
                    help="also run the policy without adaptation on the held-out colours (does adapting help?)")
     p.add_argument("--raw", action="store_true",
                    help="act with the parameters Adam trained, not their moving average (runs with --ema)")
-    p.add_argument("--alpha", type=float, default=None,
+    p.add_argument("--alpha", type=cli.finite_non_negative_float, default=None,
                    help="meta-test with this inner step size instead of the one the checkpoint was trained with")
-    p.add_argument("--inner-steps", type=int, default=None,
+    p.add_argument("--inner-steps", type=cli.non_negative_int, default=None,
                    help="meta-test with this many inner steps instead of the trained number")
     p.add_argument("--method", choices=METHODS, default=None,
                    help="the method the checkpoint must have been trained with (default: whatever it was)")
-    p.add_argument("--json", default=None, help="also write the results to this JSON file")
+    p.add_argument("--json", type=cli.writable_file, default=None,
+                   help="also write the results to this JSON file (checked before evaluating)")
     args = p.parse_args(argv)
+    splits = [(name, path) for name, path in (("heldout", args.heldout), ("train", args.train)) if path]
+    if not splits:
+        p.error("--heldout and --train are both '': nothing to evaluate")
     ckpt = checkpoint.load(args.checkpoint)
     params, cfg = checkpoint.policy_params(ckpt, args.raw), ckpt["config"]
     if args.method not in (None, cfg.method):
@@ -91,13 +97,22 @@ def main(argv=None):
         maml.check_step(cfg.alpha, cfg.inner_steps)
     except ValueError as e:
         p.error(f"{e} (--alpha >= 0, --inner-steps >= 0)")
+    # Every dataset is found and checked before the first trial (not the second after the first's).
+    for name, path in splits:
+        if not os.path.exists(path):
+            split, flag, demos, seed = (("heldout", "--heldout", cfg.heldout_demos, 1) if name == "heldout" else
+                                        ("train", "--train", cfg.train_demos, 0))
+            tasks = len(palette.split_colours(split, PaletteConfig(mode=cfg.palette)))
+            make = (f"make it with `python -m oneshot.collect --out {path} --split {split} --tasks {tasks} "
+                    f"--demos {demos} --seed {seed} --noise {cfg.demo_noise}`" if cfg.palette == "hues" else
+                    f"`python -m oneshot.train --palette {cfg.palette} --{split}-data {path}` collects it")
+            raise FileNotFoundError(f"no {name} dataset at {path!r} ({flag}); {make}"
+                                    f"{'' if name == 'heldout' else ', or skip it with --train ' + repr('')}")
+    datasets = {name: data.load(path) for name, path in splits}
     only = inner_only(cfg)
     mil = cfg.method == "mil"
     results = {}
-    for name, path in (("heldout", args.heldout), ("train", args.train)):
-        if not path:
-            continue
-        dataset = data.load(path)
+    for name, dataset in datasets.items():
         condition = methods.conditioner(cfg, params, seed=args.seed)
         r = imitation.one_shot_success(condition, dataset, args.trials, args.seed)
         r["ci95"] = lo, hi = wilson_interval(r["successes"], r["trials"])
@@ -120,11 +135,12 @@ def main(argv=None):
                   f"95% CI [{lo:.3f}, {hi:.3f}]")
             results["heldout_unadapted"] = u
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump({k: dict(v, per_colour={str(c): x for c, x in v["per_colour"].items()})
-                       if "per_colour" in v else v for k, v in results.items()}, f, indent=1)
+        written = {k: dict(v, per_colour={str(c): x for c, x in v["per_colour"].items()})
+                   if "per_colour" in v else v for k, v in results.items()}
+        with data.atomic_write(args.json) as f:             # never half a file
+            f.write(json.dumps(written, indent=1).encode())
     return results
 
 
 if __name__ == "__main__":
-    sys.exit(0 if main() else 1)
+    cli.run(main)

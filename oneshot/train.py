@@ -19,8 +19,8 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from oneshot import checkpoint, collect, data, host, imitation, maml, methods, optim, palette, shards
-from oneshot.config import PROFILES, TrainConfig, inner_only
+from oneshot import checkpoint, cli, collect, data, host, imitation, maml, methods, optim, palette, shards
+from oneshot.config import INNER_PARAMS, METHODS, PROFILES, TrainConfig, inner_only
 from oneshot.expert import ExpertConfig
 from oneshot.palette import PaletteConfig
 from oneshot.world import WorldConfig
@@ -206,32 +206,67 @@ def _truncate_log(path, iteration):
 
 
 def main(argv=None):
-    p = argparse.ArgumentParser(prog="python -m oneshot.train", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = cli.Parser(prog="python -m oneshot.train", description=__doc__,
+                   formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--profile", choices=sorted(PROFILES), default="default",
                    help="named configuration (default: the fast profile; 'paper': MIL's iteration count)")
     p.add_argument("--run", default=None, help="run folder (default: runs/<profile>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --run from its checkpoint")
+    # Each field's type says what it accepts (argparse names the flag when a value is refused); the
+    # ints not listed here are counts where 0 is meaningful (eval_every, bias_transform, tasks, demos:
+    # 0 is off or all; inner_steps: 0 is no adaptation; seed).
+    kinds = {int: cli.non_negative_int, float: cli.finite_non_negative_float, bool: cli.boolean,
+             tuple: cli.finite_non_negative_floats, str: str}
+    kinds_of = {name: cli.positive_int for name in ("iterations", "meta_batch", "log_every", "eval_trials",
+                                                    "checkpoint_every", "shards", "lstm_units")}
+    kinds_of.update(train_demos=cli.at_least(2, " (MAML adapts on one demo and scores another)"),
+                    heldout_demos=cli.at_least(2, " (one to adapt on, another to evaluate)"))
+    choices = {"lr_schedule": ("constant", "cosine"), "inner_params": sorted(INNER_PARAMS), "method": METHODS,
+               "palette": palette.MODES}
     for field in dataclasses.fields(TrainConfig):
-        kind = {bool: lambda s: s.lower() in ("1", "true", "yes"),
-                tuple: lambda s: tuple(float(x) for x in s.split(","))}.get(field.type, field.type)
-        p.add_argument("--" + field.name.replace("_", "-"), type=kind, default=None,
-                       help=f"override the profile's {field.name}")
+        text = f"override the profile's {field.name}" + (" (true/false)" if field.type is bool else "")
+        kind = kinds_of.get(field.name, kinds.get(field.type, field.type))
+        p.add_argument("--" + field.name.replace("_", "-"), type=kind, choices=choices.get(field.name), default=None,
+                       help=text)
     args = p.parse_args(argv)
     overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainConfig)
                  if getattr(args, f.name) is not None}
     cfg = dataclasses.replace(PROFILES[args.profile], **overrides)
     run = args.run or os.path.join("runs", args.profile)
+    # Before any work: what must fit in memory (the datasets to collect, a meta-batch's images) and
+    # how many processes share the frames. Frames and image size: the training set's, if it exists.
+    world = WorldConfig(palette=PaletteConfig(mode=cfg.palette))
+    frames, size = world.horizon, world.image_size
+    if os.path.exists(cfg.train_data):
+        try:
+            with np.load(cfg.train_data, allow_pickle=False) as f:
+                recorded = json.loads(str(f["metadata"]))["world"]
+            frames, size = int(recorded["horizon"]), int(recorded["image_size"])
+        except Exception:                        # a damaged file: train() says what is wrong with it
+            pass
+    try:
+        for path, split, demos, flag in ((cfg.train_data, "train", cfg.train_demos, "--train-demos"),
+                                         (cfg.heldout_data, "heldout", cfg.heldout_demos, "--heldout-demos")):
+            if not os.path.exists(path):
+                tasks = len(palette.split_colours(split, world.palette))
+                cli.check_memory(cli.dataset_bytes(tasks, demos, world.horizon, world.image_size, world.n_objects),
+                                 f"collecting the missing {path} ({tasks} tasks x {demos} demos)",
+                                 f"use a smaller {flag}")
+        cli.check_memory(2 * cfg.meta_batch * frames * size * size * 3 * 4,
+                         f"a meta-batch of {cfg.meta_batch} tasks (its {frames}-frame float32 images alone)",
+                         f"use a smaller --meta-batch (the profile's: {PROFILES[args.profile].meta_batch})")
+    except ValueError as e:
+        p.error(str(e))
+    if cfg.method == "mil" and cfg.shards > frames:
+        p.error(f"argument --shards: the processes share each demo's {frames} frames, so 1 to {frames}; "
+                f"got {cfg.shards}")
     host.tune_malloc()
     t0 = time.perf_counter()
-    try:
-        train(cfg, run, resume=args.resume)
-    except (TrainingDiverged, FileExistsError, ValueError, FileNotFoundError, shards.ShardError) as e:
-        sys.exit(f"error: {e}")
+    train(cfg, run, resume=args.resume)
     done = "picked the random policy's torque std" if cfg.method == "random" else \
         f"trained {cfg.iterations} meta-iterations"
     print(f"{done} in {time.perf_counter() - t0:.0f} s; checkpoint: {os.path.join(run, 'checkpoint.npz')}")
 
 
 if __name__ == "__main__":
-    main()
+    cli.run(main, failures=(TrainingDiverged, shards.ShardError))

@@ -1,0 +1,188 @@
+"""What the command-line tools share: argument types that say what they accept, checks made before
+any work (a path an output can be written to, memory for what is about to be allocated), and `run`,
+which turns the package's errors into one line on stderr and an exit status:
+
+    $ python -m oneshot.collect --out data/x.npz --workers 0
+    error: argument --workers: expected a whole number >= 1; got '0' (see python -m oneshot.collect --help)
+
+Exit statuses: 0 done; 2 bad input (an argument, a missing or malformed file); 1 a failure on the
+way (training diverged, a worker process died, the disk); 130 interrupted (Ctrl-C).
+The commands import this module; it imports no other part of oneshot.
+"""
+import argparse
+import math
+import os
+import sys
+import tempfile
+
+BAD_INPUT = (ValueError, FileNotFoundError, FileExistsError)   # oneshot.data.DatasetError is a ValueError
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse's parser, but an error is one line, `error: argument --flag: ...` (exit status 2),
+    not the usage block followed by the message."""
+
+    def error(self, message):
+        sys.stderr.write(f"error: {message} (see {self.prog} --help)\n")
+        raise SystemExit(2)
+
+
+# --- argument types (argparse prefixes their messages with the flag) -------------------------------
+
+def at_least(least, why=""):
+    """An argparse type: a whole number >= `least`; `why` is added to the message when it is not."""
+    def whole_number(text):
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < least:
+            raise argparse.ArgumentTypeError(f"expected a whole number >= {least}{why}; got {text!r}")
+        return value
+    return whole_number
+
+
+positive_int = at_least(1)
+non_negative_int = at_least(0)
+
+
+def finite_non_negative_float(text):
+    """An argparse type: a finite real number >= 0 (not nan or inf)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0; got {text!r}")
+    return value
+
+
+def finite_non_negative_floats(text):
+    """An argparse type: comma-separated finite numbers >= 0, e.g. "0.1,0.5,1" -> (0.1, 0.5, 1.0)."""
+    try:
+        return tuple(finite_non_negative_float(x) for x in text.split(","))
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated finite numbers >= 0, e.g. 0.1,0.5,1; "
+                                         f"got {text!r}") from None
+
+
+TRUE, FALSE = ("true", "1", "yes"), ("false", "0", "no")
+
+
+def boolean(text):
+    """An argparse type: true/1/yes or false/0/no (any case); anything else is an error, not False."""
+    if text.strip().lower() in TRUE + FALSE:
+        return text.strip().lower() in TRUE
+    raise argparse.ArgumentTypeError(f"expected one of {'/'.join(TRUE)} or {'/'.join(FALSE)}; got {text!r}")
+
+
+def writable_file(path):
+    """An argparse type: `path`, if a file can be written there (atomically, as `oneshot.data` does):
+    it is not a folder, and its folder exists and takes new files, or can be created. Leaves nothing
+    on disk, so an unwritable output fails before the work, not after it."""
+    if not path:
+        raise argparse.ArgumentTypeError("expected a file path; got ''")
+    if os.path.isdir(path):
+        raise argparse.ArgumentTypeError(f"{path!r} is a folder; name a file (in it, if you like)")
+    _check_folder(os.path.dirname(os.path.abspath(path)), path)
+    return path
+
+
+def writable_folder(path):
+    """An argparse type: `path`, if files can be written in it: a folder that takes new files, or one
+    that can be created. Leaves nothing on disk."""
+    if not path:
+        raise argparse.ArgumentTypeError("expected a folder path; got ''")
+    _check_folder(os.path.abspath(path), path)
+    return path
+
+
+def _check_folder(folder, path):
+    """Raise ArgumentTypeError unless `folder` is, or can be created as, a folder that takes new files."""
+    existing = folder
+    while not os.path.exists(existing):                  # the nearest existing ancestor
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        raise argparse.ArgumentTypeError(f"cannot write {path!r}: {existing!r} is a file, not a folder")
+    try:                                                 # try it: os.access says yes to root on a
+        tempfile.TemporaryFile(dir=existing).close()     # read-only file system
+    except OSError as e:
+        raise argparse.ArgumentTypeError(f"cannot write {path!r}: no new files can be made in {existing!r} "
+                                         f"({e.strerror or e}); choose another path") from None
+
+
+# --- memory ----------------------------------------------------------------------------------------
+
+def available_memory_bytes():
+    """Bytes of memory that can be allocated without swapping: /proc/meminfo's MemAvailable (Linux),
+    else the free physical pages (os.sysconf), else None (unknown)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024          # the file counts kB
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def dataset_bytes(tasks, demos, horizon, image_size, n_objects):
+    """Bytes of a dataset of `oneshot.data`'s layout in memory: tasks x demos x horizon frames of
+    (image_size, image_size, 3) uint8 images, states (6 float32) and torques (2 float32), and per demo
+    its objects' colours (int16) and positions (2 float32), target index (int8) and seed (int64)."""
+    per_frame = image_size * image_size * 3 + 6 * 4 + 2 * 4
+    per_demo = horizon * per_frame + n_objects * (2 + 2 * 4) + 1 + 8
+    return tasks * demos * per_demo + tasks * 2
+
+
+def check_memory(nbytes, what, fix):
+    """Raise ValueError("<what> would take <size> ... <fix>") if `nbytes` exceed the available memory."""
+    available = available_memory_bytes()
+    if available is not None and nbytes > available:
+        raise ValueError(f"{what} would take {human_bytes(nbytes)} of memory, and {human_bytes(available)} "
+                         f"is available; {fix}")
+
+
+def human_bytes(n):
+    """1234567 -> '1.2 MB' (powers of 1000)."""
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if n < 999.5:
+            return f"{n:.1f} {unit}" if n < 99.95 else f"{n:.0f} {unit}"
+        n /= 1000
+    return f"{n:,.0f} PB"
+
+
+# --- running a command -----------------------------------------------------------------------------
+
+def run(main, argv=None, failures=()):
+    """Call a command's `main(argv)` and return what it returns, but turn the package's errors into
+    one line on stderr and an exit status (no traceback for what a person can fix):
+
+        2    ValueError (oneshot.data.DatasetError among them), FileNotFoundError, FileExistsError:
+             bad input; the message says what and how to fix it
+        1    the `failures` types (e.g. train.TrainingDiverged, shards.ShardError) and other OSError;
+             lines after the first of their message (a worker's traceback) are printed after it
+        130  KeyboardInterrupt
+    Anything else is a bug, and keeps its traceback.
+    """
+    try:
+        return main(argv)
+    except KeyboardInterrupt:
+        _exit("interrupted", 130)
+    except BAD_INPUT as e:
+        _exit(" ".join(_lines(e)), 2)
+    except (*failures, OSError) as e:
+        _exit("\n".join(_lines(e)), 1)
+
+
+def _lines(error):
+    return [line for line in str(error).strip().splitlines() if line.strip()] or [type(error).__name__]
+
+
+def _exit(message, status):
+    sys.stdout.flush()
+    sys.stderr.write(f"error: {message}\n")
+    raise SystemExit(status)
