@@ -90,8 +90,6 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
     # 1. Data: both splits, in network units (images in [0, 1], states and torques of order one).
     train_set, heldout_set = ensure_datasets(cfg, progress)
     train_set = subset(train_set, cfg.tasks, cfg.demos)
-    max_torque = train_set["metadata"]["world"]["arm"]["max_torque"]
-    demos = imitation.prepare_demos(train_set["images"], train_set["states"], train_set["actions"], max_torque)
     image_size = train_set["images"].shape[-2]
 
     # 2. Parameters, optimiser and random state: fresh, or exactly as the checkpoint left them.
@@ -128,6 +126,8 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
         return params
 
     # 3. Meta-training loop: sample tasks, adapt (eq. 1), score (eq. 2), meta-gradient, clip, Adam.
+    max_torque = train_set["metadata"]["world"]["arm"]["max_torque"]
+    demos = imitation.prepare_demos(train_set["images"], train_set["states"], train_set["actions"], max_torque)
     end = cfg.iterations if stop_after is None else min(cfg.iterations, start + stop_after)
     bar = tqdm(range(start, end), initial=start, total=cfg.iterations, desc="meta-training",
                disable=not progress)
@@ -175,12 +175,11 @@ def random_std(cfg, train_set):
     """The random baseline's training: one-shot success on (at most 36 of) the meta-training colours
     for each torque std of cfg.random_stds (cfg.eval_trials trials each); the best is kept, as the
     paper reports the best. Returns ({"std": (1,)}, {std: success rate})."""
-    scores = {}
+    scores, colours = {}, subset(train_set, min(36, len(train_set["images"])))
     for std in cfg.random_stds:
-        params = {"std": np.array([std], np.float32)}
-        condition = methods.conditioner(cfg, params, seed=cfg.seed)
-        scores[std] = imitation.one_shot_success(condition, subset(train_set, min(36, len(train_set["images"]))),
-                                                 cfg.eval_trials, seed=cfg.seed, progress=False)["rate"]
+        condition = methods.conditioner(cfg, {"std": np.array([std], np.float32)}, seed=cfg.seed)
+        scores[std] = imitation.one_shot_success(condition, colours, cfg.eval_trials, seed=cfg.seed,
+                                                 progress=False)["rate"]
     best = max(cfg.random_stds, key=lambda s: scores[s])
     return {"std": np.array([best], np.float32)}, scores
 
