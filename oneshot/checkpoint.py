@@ -1,72 +1,354 @@
 """Checkpoints of a meta-training run: parameters, their moving average, Adam's state, the iteration,
-the random state and the configs, in one .npz file (no pickles), written atomically.
+the random state, the configs and the world the data was recorded in, in one .npz file (no pickles),
+written atomically.
 
     ckpt = checkpoint.load("runs/default/checkpoint.npz")
+    checkpoint.check_data(ckpt, data.load(path)["metadata"], "runs/default/checkpoint.npz", path)
     params = checkpoint.policy_params(ckpt)          # what the policy acts with
 
 Saving then loading gives back the same arrays and random state, so a run resumed from a checkpoint
 continues exactly as the uninterrupted run would have (`train.train(..., resume=True)`).
+
+`load` trusts nothing in the file: a damaged or hand-edited checkpoint raises `CheckpointError`, which
+names the file and what is wrong with it, never a KeyError three calls deeper or a policy missing a
+parameter. It checks each array's npy header against its zip member's size before reading the data
+(a damaged header must not claim terabytes), the zip's CRCs, a SHA-256 checksum of the arrays (in
+checkpoints written since it was added), every field of the metadata, and every array's name, shape
+and dtype against what the stored configs make (`methods.init_params`). `check_data` then says whether
+a dataset is one the policy can be run on: the same image size, horizon, torque bound and palette.
 """
 import dataclasses
+import hashlib
 import json
+import math
 import os
+import zipfile
 
 import numpy as np
 
-from oneshot import optim
-from oneshot.config import TrainConfig
+from oneshot import data, methods, network, optim
+from oneshot.config import TrainConfig, inner_only
 from oneshot.data import atomic_write
 from oneshot.network import STRIDE, NetworkConfig
+from oneshot.palette import PaletteConfig
+from oneshot.world import WorldConfig
+
+FORMAT_VERSION = 1
+FIX = "re-train it, or use another checkpoint"
+
+# Config fields added after the first checkpoints were written: older files lack them, and their
+# defaults are what those runs used. Every other field must be recorded. (A field added to TrainConfig
+# or NetworkConfig goes here, or the shipped policy stops loading: tests/test_train.py says so.)
+ADDED_LATER = {"config": ("method", "lstm_units", "random_stds", "palette", "tasks", "demos"),
+               "network": ("image_channels",)}
 
 
-def save(path, params, adam_state, iteration, rng, cfg, net_cfg, ema=None):
+class CheckpointError(ValueError):
+    """A checkpoint file is damaged or was edited, or does not fit a dataset; the message says which
+    file, what is wrong, and what to do."""
+
+
+def checksum(arrays):
+    """SHA-256 over a checkpoint's arrays (name, dtype, shape and bytes, in name order). -> hex str."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
+        h.update(a.data)
+    return h.hexdigest()
+
+
+def save(path, params, adam_state, iteration, rng, cfg, net_cfg, ema=None, world=None):
     """Write a checkpoint atomically (temporary file + rename): never half a file on disk.
 
     params: dict of arrays; adam_state: `optim.adam_init`'s dict; iteration: meta-iterations done;
     rng: the run's np.random.Generator; cfg: TrainConfig; net_cfg: NetworkConfig;
-    ema: the moving average of the parameters (cfg.ema > 0), or None.
+    ema: the moving average of the parameters (cfg.ema > 0), or None;
+    world: the meta-training dataset's `metadata["world"]` (a dict, or a WorldConfig), which
+    `check_data` compares other datasets with; None records nothing.
     """
     arrays = {f"params/{k}": v for k, v in params.items()}
     arrays.update({f"ema/{k}": v for k, v in (ema or {}).items()})
     arrays.update(optim.state_to_arrays(adam_state))
+    if dataclasses.is_dataclass(world):
+        world = dataclasses.asdict(world)
     meta = {"iteration": iteration, "rng": rng.bit_generator.state, "config": dataclasses.asdict(cfg),
-            "network": dataclasses.asdict(net_cfg), "format_version": 1}
+            "network": dataclasses.asdict(net_cfg), "world": world,
+            "state_layout": list(data.STATE_LAYOUT),
+            "checksum": checksum(arrays), "format_version": FORMAT_VERSION}
     with atomic_write(path) as f:
         np.savez(f, meta=np.array(json.dumps(meta)), **arrays)
 
 
 def load(path):
-    """Read a checkpoint. Returns {"params", "ema", "adam", "iteration", "rng", "config", "network"};
-    "ema" is the moving average of the parameters, or None if the run kept none (cfg.ema = 0).
-    `policy_params(ckpt)` picks the parameters to act with."""
+    """Read and check a checkpoint. Returns {"params", "ema", "adam", "iteration", "rng", "config",
+    "network", "world", "state_layout"}: "ema" is the moving average of the parameters, or None if the
+    run kept none (cfg.ema = 0); "world" the meta-training data's world (a dict) and "state_layout"
+    the robot state's layout (`data.STATE_LAYOUT` when saved; both None in older checkpoints).
+    `policy_params(ckpt)` picks the parameters to act with. Raises CheckpointError if anything in the
+    file is damaged or inconsistent."""
+    path = os.fspath(path)
     if not os.path.exists(path):
         raise FileNotFoundError(f"no checkpoint at {path!r}; train one with `python -m oneshot.train`")
+    # 1. The arrays, each header checked before its data is read; zipfile checks the CRCs.
     try:
-        with np.load(path, allow_pickle=False) as f:
-            arrays = {k: f[k] for k in f.files}
-        meta = json.loads(str(arrays.pop("meta")))
-    except Exception as e:                   # zip, JSON or key errors: all mean a damaged file
-        raise ValueError(f"{path!r} is not a readable oneshot checkpoint ({e}); "
-                         f"re-train or restore it") from e
+        arrays = _read_npz(path)
+    except Exception as e:                   # zipfile and npy headers fail in many ways: all a damaged file
+        raise CheckpointError(f"{path!r} is not a readable oneshot checkpoint ({e}); {FIX}") from e
+    meta = _read_meta(path, arrays.pop("meta", None))
+    if "checksum" in meta and checksum(arrays) != meta["checksum"]:
+        raise CheckpointError(f"{path!r} fails its checksum: its arrays were changed or damaged after "
+                              f"saving; {FIX}")
+    for name, v in arrays.items():
+        if name.startswith(("params/", "ema/")) and v.dtype.kind == "f" and not np.all(np.isfinite(v)):
+            raise CheckpointError(f"{path!r}: {name!r} contains NaN or inf; use an earlier checkpoint")
+
+    # 2. The metadata, field by field.
+    rng = np.random.default_rng()
+    try:
+        rng.bit_generator.state = meta["rng"]
+    except (ValueError, TypeError, KeyError, OverflowError) as e:
+        raise CheckpointError(f"{path!r}: meta 'rng' is not a random state ({e!r}); {FIX}") from e
+    network_fields = dict(meta["network"])
+    stride = network_fields.pop("stride", STRIDE)      # older checkpoints record the (fixed) stride
+    if stride != STRIDE:
+        raise CheckpointError(f"{path!r} was trained with convolution stride {stride}; this oneshot's "
+                              f"network has stride {STRIDE}; {FIX}")
+    cfg = _config(path, "config", TrainConfig, meta["config"])
+    net_cfg = _config(path, "network", NetworkConfig, network_fields)
+    try:
+        methods.check(cfg), inner_only(cfg)
+    except ValueError as e:
+        raise CheckpointError(f"{path!r}: meta 'config': {e}; {FIX}") from e
+    world = meta["world"]
+    if world is not None and _world(world, f"{path!r}: meta 'world'")["image_size"] != net_cfg.image_size:
+        raise CheckpointError(f"{path!r}: meta 'world' has image_size {world['image_size']} but its "
+                              f"network {net_cfg.image_size}; {FIX}")
+
+    # 3. Every array: the names, shapes and dtypes the configs make, and nothing else.
+    _check_arrays(path, arrays, cfg, net_cfg)
     params = {k[len("params/"):]: v for k, v in arrays.items() if k.startswith("params/")}
     ema = {k[len("ema/"):]: v for k, v in arrays.items() if k.startswith("ema/")} or None
-    for name, v in arrays.items():
-        if name.startswith(("params/", "ema/")) and not np.all(np.isfinite(v)):
-            raise ValueError(f"{path!r}: {name!r} contains NaN or inf; use an earlier checkpoint")
-    rng = np.random.default_rng()
-    rng.bit_generator.state = meta["rng"]
-    network = _tuples(meta["network"])
-    if network.pop("stride", STRIDE) != STRIDE:      # older checkpoints record the (fixed) stride
-        raise ValueError(f"{path!r} was trained with convolution stride {meta['network']['stride']}; "
-                         f"this oneshot's network has stride {STRIDE}")
     return {"params": params, "ema": ema, "adam": optim.state_from_arrays(arrays),
-            "iteration": meta["iteration"], "rng": rng, "config": TrainConfig(**_tuples(meta["config"])),
-            "network": NetworkConfig(**network)}
+            "iteration": meta["iteration"], "rng": rng, "config": cfg, "network": net_cfg,
+            "world": world, "state_layout": meta["state_layout"]}
 
 
-def _tuples(fields):
-    """A config dict read from JSON, its lists back to the tuples the dataclass holds."""
-    return {k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}
+def _read_npz(path):
+    """{name: array} of an .npz file (names without ".npy"). Each member's npy header is checked
+    against the member's size in the zip directory BEFORE its data is read, so a flipped bit claiming
+    a shape of terabytes is refused, not allocated; reading a member to its end checks its CRC."""
+    arrays = {}
+    headers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+    with zipfile.ZipFile(path) as z:
+        for info in z.infolist():
+            name = info.filename[:-len(".npy")] if info.filename.endswith(".npy") else info.filename
+            if name in arrays:
+                raise ValueError(f"two members are named {info.filename!r}")
+            with z.open(info) as f:
+                version = np.lib.format.read_magic(f)
+                if version not in headers:
+                    raise ValueError(f"{info.filename!r} has npy format version {version}")
+                shape, fortran_order, dtype = headers[version](f)
+                if dtype.hasobject:
+                    raise ValueError(f"{info.filename!r} holds Python objects")
+                n_bytes = math.prod(shape) * dtype.itemsize
+                if f.tell() + n_bytes != info.file_size:
+                    raise ValueError(f"{info.filename!r}: its header says {dtype} {shape} ({n_bytes} bytes) "
+                                     f"but the member holds {info.file_size - f.tell()} bytes of data")
+                raw = f.read(n_bytes)                 # to the member's end: zipfile checks the CRC here
+            if len(raw) != n_bytes:
+                raise ValueError(f"{info.filename!r} is truncated")
+            arrays[name] = np.frombuffer(raw, dtype).reshape(shape, order="F" if fortran_order else "C").copy()
+    return arrays
+
+
+def _read_meta(path, meta):
+    """The metadata dict of a checkpoint, its keys and their types checked (not yet their contents)."""
+    if meta is None:
+        raise CheckpointError(f"{path!r} has no metadata, so oneshot did not write it; {FIX}")
+    try:
+        meta = json.loads(str(meta)) if meta.dtype.kind == "U" and meta.ndim == 0 else None
+    except json.JSONDecodeError as e:
+        raise CheckpointError(f"{path!r} has corrupt metadata ({e}); {FIX}") from e
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"{path!r}: its metadata is not a JSON object; {FIX}")
+    meta = {"world": None, "state_layout": None, **meta}          # older checkpoints record neither
+    types = {"iteration": int, "rng": dict, "config": dict, "network": dict, "world": (dict, type(None)),
+             "state_layout": (list, type(None)), "checksum": str, "format_version": int}
+    for key, kind in types.items():
+        if key not in meta and key != "checksum":                 # older checkpoints have no checksum
+            raise CheckpointError(f"{path!r}: its metadata has no {key!r}; {FIX}")
+        if key in meta and (not isinstance(meta[key], kind) or isinstance(meta[key], bool)):
+            names = " or ".join(k.__name__ for k in (kind if isinstance(kind, tuple) else (kind,)))
+            raise CheckpointError(f"{path!r}: meta {key!r} is {meta[key]!r}, not {names}; {FIX}")
+    unknown = sorted(set(meta) - set(types))
+    if unknown:
+        raise CheckpointError(f"{path!r}: its metadata has an unknown key {unknown[0]!r}; {FIX}")
+    if meta["format_version"] != FORMAT_VERSION:
+        raise CheckpointError(f"{path!r} has format version {meta['format_version']}; this oneshot reads "
+                              f"version {FORMAT_VERSION}; {FIX}")
+    if meta["iteration"] < 0:
+        raise CheckpointError(f"{path!r}: meta 'iteration' is {meta['iteration']}, not >= 0; {FIX}")
+    return meta
+
+
+def _config(path, key, cls, fields):
+    """cls(**fields) for a config dict read from JSON (key: "config" or "network"): every field known,
+    every field of the first checkpoints present, each of its dataclass's type (lists back to tuples)."""
+    defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+    for name in fields:
+        if name not in defaults:
+            raise CheckpointError(f"{path!r}: meta {key!r} has an unknown field {name!r}; {FIX}")
+    for name in defaults:
+        if name not in fields and name not in ADDED_LATER[key]:
+            raise CheckpointError(f"{path!r}: meta {key!r} has no field {name!r}; {FIX}")
+    values = {}
+    for name, v in fields.items():
+        v = tuple(v) if isinstance(v, list) else v
+        if not _same_kind(v, defaults[name]):
+            raise CheckpointError(f"{path!r}: meta {key!r} field {name!r} is {v!r}, not "
+                                  f"{_kind_of(defaults[name])}; {FIX}")
+        values[name] = v
+    try:
+        return cls(**values)
+    except (ValueError, TypeError) as e:               # the dataclass's own checks (__post_init__)
+        raise CheckpointError(f"{path!r}: meta {key!r}: {e}; {FIX}") from e
+
+
+def _same_kind(value, default):
+    """Is a JSON value of the default's type? bool is not a number here, a float field takes an int,
+    numbers are finite, and a tuple's items are of its default's items' type."""
+    if isinstance(default, tuple):
+        return isinstance(value, tuple) and (not default or all(_same_kind(v, default[0]) for v in value))
+    if isinstance(default, bool) or isinstance(value, bool):
+        return isinstance(value, bool) and isinstance(default, bool)
+    if isinstance(default, float):
+        return isinstance(value, (int, float)) and math.isfinite(value)
+    return isinstance(value, type(default))
+
+
+def _kind_of(default):
+    """What a config field takes, in words, from its default."""
+    if isinstance(default, tuple):
+        return f"a list of {_kind_of(default[0])[2:]}s" if default else "a list"
+    kinds = {bool: "a bool (true or false)", int: "a whole number", float: "a finite number", str: "a string"}
+    return kinds[type(default)]
+
+
+def _check_arrays(path, arrays, cfg, net_cfg):
+    """Raise CheckpointError, naming the first missing, unexpected, or wrongly shaped or typed array,
+    unless `arrays` are exactly the parameters cfg and net_cfg make (`methods.init_params`), their
+    moving average (cfg.ema > 0), and Adam's state of them."""
+    if cfg.method != "random":
+        # The network's own shapes first, which costs nothing: a config claiming a giant network must
+        # be refused before init_params below allocates it.
+        _compare(path, arrays, {f"params/{k}": (s, None) for k, s in network.param_shapes(net_cfg).items()},
+                 only_these=True)
+    if cfg.method == "lstm" and cfg.lstm_units > net_cfg.state_dim:    # the head's state includes the units
+        raise CheckpointError(f"{path!r}: meta 'config' has lstm_units {cfg.lstm_units} but the network's "
+                              f"state_dim is only {net_cfg.state_dim}; {FIX}")
+    try:
+        made = methods.init_params(cfg, net_cfg, np.random.default_rng(0))
+    except ValueError as e:                            # e.g. a negative alpha to learn (learn_alpha)
+        raise CheckpointError(f"{path!r}: meta 'config': {e}; {FIX}") from e
+    with_ema = (cfg.ema > 0 and cfg.method != "random") or any(k.startswith("ema/") for k in arrays)
+    expected = {"adam/step": ((), np.dtype(np.int64))}
+    for k, v in made.items():
+        for prefix in ("params/",) + (("ema/",) if with_ema else ()) + ("adam/m/", "adam/v/"):
+            expected[prefix + k] = (v.shape, v.dtype)
+    _compare(path, arrays, expected)
+
+
+def _compare(path, arrays, expected, only_these=False):
+    """Raise CheckpointError unless arrays holds every name of `expected` {name: (shape, dtype or None)}
+    with that shape and dtype, and (unless only_these) nothing else."""
+    for name, (shape, dtype) in expected.items():
+        if name not in arrays:
+            raise CheckpointError(f"{path!r} has no array {name!r} (expected shape {shape}); {FIX}")
+        a = arrays[name]
+        if a.shape != tuple(shape):
+            raise CheckpointError(f"{path!r}: {name!r} has shape {a.shape} but its network and method "
+                                  f"need {tuple(shape)}; {FIX}")
+        if dtype is not None and a.dtype != dtype:
+            raise CheckpointError(f"{path!r}: {name!r} has dtype {a.dtype} but its method makes {dtype}; {FIX}")
+    extra = sorted(set(arrays) - set(expected))
+    if extra and not only_these:
+        raise CheckpointError(f"{path!r} has an unexpected array {extra[0]!r} {arrays[extra[0]].shape}; {FIX}")
+
+
+def _plain(x):
+    """x as JSON gives it back: tuples become lists (so a recorded value compares with a read one)."""
+    return json.loads(json.dumps(x))
+
+
+def _world(world, where, fix=FIX):
+    """The fields of a world dict that a checkpoint depends on: {"image_size", "horizon", "max_torque",
+    "palette" (a PaletteConfig)}. Raises CheckpointError naming `where` (and `fix`) if one is missing
+    or malformed."""
+    try:
+        out = {"image_size": world["image_size"], "horizon": world["horizon"],
+               "max_torque": world["arm"]["max_torque"], "palette": PaletteConfig(**world["palette"])}
+    except (KeyError, TypeError, ValueError) as e:
+        raise CheckpointError(f"{where} is not a world config ({e!r}); {fix}") from e
+    for key, like in (("image_size", 0), ("horizon", 0), ("max_torque", 0.0)):
+        if not _same_kind(out[key], like):
+            raise CheckpointError(f"{where} is not a world config ({key} {out[key]!r}, not {_kind_of(like)}); {fix}")
+    return out
+
+
+def world_config(ckpt):
+    """The WorldConfig a checkpoint's policy was trained in (its image size, horizon, arm, palette), or
+    for older checkpoints, which record only the network's image size, the default world of that size."""
+    if ckpt["world"] is None:
+        return WorldConfig(image_size=ckpt["network"].image_size)
+    return data.world_config({"world": ckpt["world"]})
+
+
+def check_data(ckpt, metadata, ckpt_path, data_path, palette=True):
+    """Raise CheckpointError unless a dataset (`metadata`: `data.load(data_path)["metadata"]`) is one
+    the checkpoint's policy can run on: images of the size it was trained on, demos of its horizon, its
+    state layout, the same torque bound (the policy's actions are torques divided by it) and, with
+    palette=True, the same palette (a task is a palette index: in another palette it is another
+    colour). Older checkpoints record no world: then only the image size (the network's) is checked.
+    A state layout is compared when both record one (datasets and checkpoints recording none have
+    `data.STATE_LAYOUT`)."""
+    trained = ckpt["world"]
+    mine = _world(trained, f"{ckpt_path}: meta 'world'") if trained is not None else \
+        {"image_size": ckpt["network"].image_size}
+    remake = "re-create it with `python -m oneshot.collect`"
+    if not isinstance(metadata.get("world"), dict):
+        raise CheckpointError(f"{data_path} records no world config in its metadata; {remake}")
+    theirs = _world(metadata["world"], f"{data_path}: metadata 'world'", remake)
+
+    def refuse(was, holds, fix):
+        raise CheckpointError(f"{ckpt_path} was trained on {was} but {data_path} holds {holds}; {fix}")
+
+    a, b = mine["image_size"], theirs["image_size"]
+    if a != b:
+        refuse(f"{a}x{a} images", f"{b}x{b} images", f"use data collected with --image-size {a}")
+    a, b = ckpt["state_layout"], metadata.get("state_layout")
+    if a is not None and b is not None and _plain(a) != _plain(b):
+        refuse(f"states laid out as {a}", f"states laid out as {b}",
+               "use data collected by the oneshot that trained it, or re-train on this data")
+    if trained is None:
+        return
+    a, b = mine["horizon"], theirs["horizon"]
+    if a != b:
+        refuse(f"{a}-step demos", f"{b}-step demos", f"use data collected with --horizon {a}")
+    a, b = mine["max_torque"], theirs["max_torque"]
+    if a != b:
+        refuse(f"torques of at most {a} N m (its actions are divided by it)", f"torques of at most {b} N m",
+               f"use data recorded with an arm of max_torque {a}")
+    a, b = mine["palette"], theirs["palette"]
+    if palette and a != b:
+        field = next(f.name for f in dataclasses.fields(PaletteConfig) if getattr(a, f.name) != getattr(b, f.name))
+        if field == "mode":
+            refuse(f"the {a.mode!r} palette", f"the {b.mode!r} palette",
+                   f"its colour indices mean other colours there: use data collected with the {a.mode!r} palette")
+        refuse(f"the {a.mode!r} palette with {field} {getattr(a, field)}",
+               f"the {b.mode!r} palette with {field} {getattr(b, field)}",
+               "its colour indices mean other colours there: use data collected with the checkpoint's palette")
 
 
 def policy_params(ckpt, raw=False):

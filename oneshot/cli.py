@@ -165,13 +165,13 @@ def run(main, argv=None, failures=()):
              bad input; the message says what and how to fix it
         1    the `failures` types (e.g. train.TrainingDiverged, shards.ShardError) and other OSError;
              lines after the first of their message (a worker's traceback) are printed after it
-        130  KeyboardInterrupt
+        130  KeyboardInterrupt ("interrupted", or its message: e.g. where training saved its checkpoint)
     Anything else is a bug, and keeps its traceback.
     """
     try:
         return main(argv)
-    except KeyboardInterrupt:
-        _exit("interrupted", 130)
+    except KeyboardInterrupt as e:             # its message, if any, says what was saved
+        _exit(str(e) or "interrupted", 130)
     except BAD_INPUT as e:
         _exit(" ".join(_lines(e)), 2)
     except (*failures, OSError) as e:

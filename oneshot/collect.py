@@ -1,14 +1,17 @@
 """Collect expert demonstrations into a dataset: `python -m oneshot.collect --help`.
 
 N tasks (distinct target colours of one split) x K demos per task, each demo a fresh scene. Every
-demo's scene seed is derived from (seed, task, demo, attempt), so the dataset is the same whatever
-the number of worker processes. A demo the expert fails is retried on a fresh scene and counted in
-the metadata ("failed_attempts").
+demo's scene seed is derived from (seed, task, demo, attempt), so the dataset, and the saved file
+byte for byte, is the same whatever the number of worker processes (the time taken and the workers
+are printed, not stored). A demo the expert fails is retried on a fresh scene and counted in the
+metadata ("failed_attempts"); a horizon too short for the expert fails every scene, which is an
+error (ExpertFailed) that asks for a longer one. Ctrl-C stops the workers and writes nothing.
 """
 import argparse
 import dataclasses
 import multiprocessing
 import os
+import signal
 import time
 
 import numpy as np
@@ -18,6 +21,11 @@ from oneshot import cli, data, expert, palette
 from oneshot.world import ReachWorld, WorldConfig
 
 MAX_ATTEMPTS = 10
+
+
+class ExpertFailed(ValueError):
+    """The expert failed every scene of a demo (MAX_ATTEMPTS in a row): the horizon is too short for it
+    to reach the target and stay there (bad input, so a ValueError: exit status 2 from the command)."""
 
 
 def scene_seed(seed, task, k, attempt):
@@ -46,13 +54,23 @@ def _demo_job(job):
         d = expert.demonstrate(world, seed=s, options={"target_colour": int(colour)}, cfg=expert_cfg)
         if d["success"]:
             return task, k, d, s, attempt
-    raise RuntimeError(f"the expert failed {MAX_ATTEMPTS} scenes in a row for task {task} (colour "
-                       f"{colour}); the world or expert configuration is probably broken")
+    noise = " or a smaller --noise" if expert_cfg.action_noise > 0 else ""
+    raise ExpertFailed(f"the expert failed {MAX_ATTEMPTS} scenes in a row for task {task} (colour {colour}): "
+                       f"in {world_cfg.horizon} steps it cannot reach the target and stay there; "
+                       f"use a longer --horizon (the default is {WorldConfig().horizon}){noise}")
+
+
+def _ignore_sigint():
+    """Pool initializer: workers ignore Ctrl-C (the terminal sends it to the whole process group), so
+    only the parent stops, and terminates them, instead of every worker printing a traceback. (A pool's
+    workers end by themselves when the parent is killed outright: measured, they are gone within 2 s.)"""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def collect(n_tasks, demos_per_task, split="train", seed=0, workers=None, world_cfg=None,
             expert_cfg=expert.ExpertConfig(), progress=True):
-    """Record a dataset (see `oneshot.data`). workers: processes (default: all cores)."""
+    """Record a dataset (see `oneshot.data`). workers: processes (default: all cores); the dataset is the
+    same for any number. Raises ExpertFailed if the expert fails every scene of a demo."""
     if demos_per_task < 2:
         raise ValueError(f"MAML needs at least 2 demos per task (one to adapt on, one to evaluate); "
                          f"got {demos_per_task}")
@@ -68,25 +86,31 @@ def collect(n_tasks, demos_per_task, split="train", seed=0, workers=None, world_
            "target_index": np.zeros((N, K), np.int8), "seeds": np.zeros((N, K), np.int64)}
     failures, iterations = 0, []
     workers = workers or os.cpu_count() or 1
-    start = time.perf_counter()
     bar = tqdm(total=len(jobs), desc=f"collecting {split} demos", unit="demo", disable=not progress)
-    with multiprocessing.get_context("fork").Pool(workers) if workers > 1 else _Serial() as pool:
-        for i, k, d, s, failed in pool.imap_unordered(_demo_job, jobs, chunksize=8):
-            out["images"][i, k], out["states"][i, k], out["actions"][i, k] = d["images"], d["states"], d["actions"]
-            scene = d["scene"]
-            out["colours"][i, k], out["positions"][i, k] = scene.colours, scene.positions
-            out["target_index"][i, k], out["seeds"][i, k] = scene.target, s
-            failures += failed
-            iterations.append(d["ilqg_iterations"])
-            bar.update()
-    bar.close()
+    try:
+        # leaving the `with` on an error or Ctrl-C terminates the pool's workers and waits for them
+        pool = (multiprocessing.get_context("fork").Pool(workers, _ignore_sigint) if workers > 1
+                else _Serial())
+        with pool:
+            for i, k, d, s, failed in pool.imap_unordered(_demo_job, jobs, chunksize=8):
+                out["images"][i, k], out["states"][i, k], out["actions"][i, k] = d["images"], d["states"], d["actions"]
+                scene = d["scene"]
+                out["colours"][i, k], out["positions"][i, k] = scene.colours, scene.positions
+                out["target_index"][i, k], out["seeds"][i, k] = scene.target, s
+                failures += failed
+                iterations.append(d["ilqg_iterations"])
+                bar.update()
+    except BaseException:
+        bar.leave = False              # wipe the half-drawn bar, so the error is the one line left
+        raise
+    finally:
+        bar.close()
     out["metadata"] = {
         "split": split, "seed": seed, "n_tasks": N, "demos_per_task": K,
         "world": dataclasses.asdict(world_cfg), "expert": dataclasses.asdict(expert_cfg),
         "failed_attempts": failures, "dropped": 0, "max_attempts": MAX_ATTEMPTS,
         "expert_success_rate": N * K / (N * K + failures),
         "ilqg_iterations_median": float(np.median(iterations)),
-        "seconds": round(time.perf_counter() - start, 2), "workers": workers,
     }
     return out
 
@@ -140,13 +164,15 @@ def main(argv=None):
         p.error(str(e))
     cores = os.cpu_count() or 1
     workers = min(args.workers or cores, cores, args.tasks * args.demos)   # more would only wait
+    start = time.perf_counter()
     dataset = collect(args.tasks, args.demos, args.split, args.seed, workers, world_cfg,
                       expert.ExpertConfig(action_noise=args.noise))
+    seconds = time.perf_counter() - start
     meta = data.save(dataset, args.out)
     print(f"wrote {args.out}: {args.tasks} tasks x {args.demos} demos ({args.split} colours) with {workers} "
-          f"process{'es' if workers > 1 else ''} in {meta['seconds']} s; expert success "
+          f"process{'es' if workers > 1 else ''} in {seconds:.2f} s; expert success "
           f"{meta['expert_success_rate']:.3f} ({meta['failed_attempts']} failed attempts retried)")
 
 
 if __name__ == "__main__":
-    cli.run(main, failures=(RuntimeError,))    # RuntimeError: the expert failed every scene of a demo
+    cli.run(main)        # ExpertFailed is a ValueError: exit status 2, with its one line

@@ -18,6 +18,7 @@ run in docs/results.md; reproduce it with `python -m oneshot.train --profile def
 any checkpoint you pass.
 """
 import argparse
+import dataclasses
 import os
 
 import numpy as np
@@ -128,9 +129,10 @@ def main(argv=None):
     # Demos like the ones the policy was meta-trained on (with the same DART noise, if any).
     expert_cfg = expert.ExpertConfig(action_noise=ckpt["config"].demo_noise if ckpt else 0.0)
 
-    # 1. One expert demonstration per held-out colour.
-    world = ReachWorld(WorldConfig(split="heldout"))
-    colours = palette.split_colours("heldout")
+    # 1. One expert demonstration per held-out colour, in the world the policy was trained in (its image
+    # size, horizon, arm and palette; older checkpoints record only the image size).
+    world = ReachWorld(dataclasses.replace(checkpoint.world_config(ckpt) if ckpt else WorldConfig(), split="heldout"))
+    colours = palette.split_colours("heldout", world.config.palette)
     print(f"1. The iLQG expert records ONE demonstration for each of the {len(colours)} held-out colours")
     demos = {}
     for i, colour in enumerate(colours):

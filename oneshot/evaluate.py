@@ -78,6 +78,9 @@ def main(argv=None):
                    help="meta-test with this many inner steps instead of the trained number")
     p.add_argument("--method", choices=METHODS, default=None,
                    help="the method the checkpoint must have been trained with (default: whatever it was)")
+    p.add_argument("--any-palette", action="store_true",
+                   help="allow datasets of another palette than the policy was trained with (a transfer test, "
+                        "e.g. a grid-trained policy on the default hues)")
     p.add_argument("--json", type=cli.writable_file, default=None,
                    help="also write the results to this JSON file (checked before evaluating)")
     args = p.parse_args(argv)
@@ -109,6 +112,8 @@ def main(argv=None):
             raise FileNotFoundError(f"no {name} dataset at {path!r} ({flag}); {make}"
                                     f"{'' if name == 'heldout' else ', or skip it with --train ' + repr('')}")
     datasets = {name: data.load(path) for name, path in splits}
+    for name, path in splits:                # images, horizon, state, torques (and palette) as trained on
+        checkpoint.check_data(ckpt, datasets[name]["metadata"], args.checkpoint, path, palette=not args.any_palette)
     only = inner_only(cfg)
     mil = cfg.method == "mil"
     results = {}

@@ -1,6 +1,7 @@
 """The machine, in one place: what a process asks of it (fewer page faults from malloc, the number of
 BLAS threads; no-ops where the C library or NumPy's BLAS does not offer them) and what it is (the CPU,
-NumPy's BLAS and SIMD level, peak memory), which every benchmark figure records.
+NumPy's BLAS and SIMD level, peak memory), which every benchmark figure records; and that a worker
+process ends with the process that started it (`die_with_parent`).
 
 Why the BLAS thread count matters: during meta-training the matrix products are small (40 output
 channels), and OpenBLAS's threads spin while they wait for work. With two shard processes on two
@@ -11,6 +12,9 @@ import ctypes
 import glob
 import os
 import resource
+import signal
+import threading
+import time
 
 import numpy as np
 
@@ -28,6 +32,28 @@ def tune_malloc():
         libc.mallopt(-3, 1 << 30)        # M_MMAP_THRESHOLD
     except (OSError, AttributeError):
         pass
+
+
+PR_SET_PDEATHSIG = 1                    # linux/prctl.h
+
+
+def die_with_parent(parent):
+    """End this process when its parent (pid `parent`) dies, even by kill -9, instead of living on,
+    reparented, blocked on a pipe: a worker process calls it first. On Linux the kernel sends SIGKILL
+    (prctl PR_SET_PDEATHSIG); elsewhere a daemon thread checks the parent's pid every second."""
+    try:
+        if ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL) == 0:
+            if os.getppid() != parent:   # the parent died before prctl took effect
+                os._exit(1)
+            return
+    except (OSError, AttributeError):
+        pass
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+    threading.Thread(target=watch, daemon=True).start()
 
 
 def _openblas():

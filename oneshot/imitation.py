@@ -60,6 +60,10 @@ def sample_meta_batch(demos, rng, meta_batch=5):
     return adapt, evaluate
 
 
+class PolicyDiverged(ValueError):
+    """A policy's torques are NaN or inf: its checkpoint diverged (bad input, so a ValueError)."""
+
+
 def adapt(params, demo, alpha=0.001, steps=3, only=None):
     """One-shot adaptation (eq. 1) to a single demo (images, states, actions) in network units.
     only: None (adapt every parameter) or key prefixes of the parameters that adapt (maml.inner_update)."""
@@ -76,7 +80,11 @@ def act(policy, obs, max_torque, scene=None):
     image = images_to_float(obs["image"])[None]
     state = (observation_state(obs) / STATE_SCALE)[None]
     action = policy(image, state, scene) if callable(policy) else forward(policy, image, state)
-    return np.asarray(action)[0].astype(np.float64) * max_torque
+    action = np.asarray(action)[0].astype(np.float64) * max_torque
+    if not np.all(np.isfinite(action)):
+        raise PolicyDiverged(f"the policy's torques are {action} (not finite): its parameters, or the ones "
+                             f"adapting to a demo made, overflow; use an earlier checkpoint (or a smaller --alpha)")
+    return action
 
 
 def rollout(policy, world, seed, target_colour=None):
@@ -134,18 +142,26 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
                           world_cfg.arm.max_torque)
     wins, per_colour, failures = 0, {}, {"near_miss": 0, "wrong_object": 0}
     bar = tqdm(total=n * trials_per_colour, desc=f"one-shot trials ({meta['split']})", disable=not progress)
-    for i in range(n):
-        colour, won = int(dataset["task_colours"][i]), 0
-        for j in range(trials_per_colour):
-            trial = rollout(condition(tuple(a[i, j % k] for a in demos)), world, trial_seed(seed, i, j), colour)
-            won += trial["success"]
-            if not trial["success"]:
-                closest, _ = closest_object(trial["end_effector"], trial["scene"].positions)
-                failures["near_miss" if closest == trial["scene"].target else "wrong_object"] += 1
-            bar.update()
-        per_colour[colour] = won / trials_per_colour
-        wins += won
-    bar.close()
+    # A diverged policy overflows: `act` raises PolicyDiverged, so numpy's warnings would only add noise.
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            for i in range(n):
+                colour, won = int(dataset["task_colours"][i]), 0
+                for j in range(trials_per_colour):
+                    policy = condition(tuple(a[i, j % k] for a in demos))
+                    trial = rollout(policy, world, trial_seed(seed, i, j), colour)
+                    won += trial["success"]
+                    if not trial["success"]:
+                        closest, _ = closest_object(trial["end_effector"], trial["scene"].positions)
+                        failures["near_miss" if closest == trial["scene"].target else "wrong_object"] += 1
+                    bar.update()
+                per_colour[colour] = won / trials_per_colour
+                wins += won
+    except BaseException:
+        bar.leave = False                         # wipe the half-drawn bar: the error is the line left
+        raise
+    finally:
+        bar.close()
     trials = n * trials_per_colour
     return {"successes": wins, "trials": trials, "rate": wins / trials, "per_colour": per_colour,
             "failures": failures}

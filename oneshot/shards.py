@@ -32,7 +32,7 @@ import numpy as np
 from autograd.extend import defvjp, primitive
 
 from oneshot import batched, imitation
-from oneshot.host import blas_threads
+from oneshot.host import blas_threads, die_with_parent
 
 TIMEOUT = 600.0   # seconds a process waits for the others at one exchange before giving up
 
@@ -242,7 +242,7 @@ class Pool:
             demos = mailbox[len(keys):]
             here, there = context.Pipe()
             process = context.Process(target=_serve, daemon=True, args=(
-                self.exchange, rank, params, tuple(demos[:n_demo]), tuple(demos[n_demo:]), there))
+                self.exchange, rank, params, tuple(demos[:n_demo]), tuple(demos[n_demo:]), there, os.getpid()))
             process.start()
             there.close()
             self.workers.append((process, here))
@@ -250,8 +250,10 @@ class Pool:
         self.layout = layout
 
 
-def _serve(exchange, rank, params, adapt, evaluate, conn):
-    """A worker's loop: wait for the go (the settings), compute its part from the mailbox, repeat."""
+def _serve(exchange, rank, params, adapt, evaluate, conn, parent):
+    """A worker's loop: wait for the go (the settings), compute its part from the mailbox, repeat.
+    It dies with the training process (`parent`), however that ends."""
+    die_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)      # Ctrl-C is for the training process, which stops us
     blas_threads(1)
     exchange.rank = rank

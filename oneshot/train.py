@@ -5,14 +5,21 @@
 
 A run folder holds `checkpoint.npz` (parameters, Adam state, iteration, random state, config; written
 atomically every `checkpoint_every` iterations and at the end) and `log.jsonl` (one JSON object per
-line: meta-loss every `log_every` iterations, held-out one-shot success every `eval_every`).
+line: meta-loss every `log_every` iterations, held-out one-shot success every `eval_every`). One
+process trains in a folder at a time (`lock_run`); Ctrl-C or a plain kill saves a checkpoint of the last
+finished iteration before it exits (status 130), and `--resume` continues from it.
 Missing datasets are collected first with `python -m oneshot.collect` settings from the profile.
 """
 import argparse
+import contextlib
 import dataclasses
+import fcntl
+import glob
 import json
 import math
 import os
+import shutil
+import signal
 import sys
 import time
 
@@ -75,39 +82,97 @@ def subset(dataset, tasks=0, demos=0):
     return dict(out, metadata=dataset["metadata"])
 
 
+# Fields of TrainConfig a --resume may change: how long, how often to log, evaluate and save, and the
+# step size (to retry a diverged run from its last good checkpoint with a smaller one). Anything else
+# would make the resumed run a different experiment.
+RESUMABLE = ("iterations", "log_every", "eval_every", "eval_trials", "checkpoint_every", "lr")
+
+
+class RunLocked(RuntimeError):
+    """Another process is training in the same run folder."""
+
+
+@contextlib.contextmanager
+def lock_run(run_dir):
+    """Own `run_dir` while the block runs: a second training process in it fails at once (RunLocked)
+    instead of interleaving its checkpoints and log with ours. The lock (flock on run_dir/.lock) goes
+    with the process, however it ends. Temporary files a killed process left are removed; a folder
+    made here and left with nothing but the lock (the run failed before starting) is removed too."""
+    created = not os.path.exists(run_dir)
+    os.makedirs(run_dir, exist_ok=True)
+    try:
+        with open(os.path.join(run_dir, ".lock"), "a+") as lock:
+            _own(lock, run_dir)
+            yield
+    except BaseException:
+        if created and os.listdir(run_dir) == [".lock"]:
+            shutil.rmtree(run_dir, ignore_errors=True)
+        raise
+
+
+def _own(lock, run_dir):
+    """Take `lock` (an open file) without waiting, write our pid in it, remove stale temporary files."""
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.seek(0)
+        owner = lock.read().strip() or "unknown"
+        raise RunLocked(f"another process (pid {owner}) is training in {run_dir!r}; wait for it to end, "
+                        f"or use another --run folder") from None
+    lock.seek(0)
+    lock.truncate()
+    lock.write(f"{os.getpid()}\n")
+    lock.flush()
+    for stale in glob.glob(os.path.join(glob.escape(run_dir), ".tmp-*")):   # a write a kill interrupted
+        os.remove(stale)
+
+
 def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
     """Meta-train a policy (Sections II-III): MAML on behavioural cloning, or a baseline of Section IV
     with the same data, loss, optimiser and checkpoints (cfg.method, `oneshot.methods`).
 
-    run_dir: folder for checkpoint.npz and log.jsonl. resume: continue from its checkpoint (the
-    rest of the run is then identical to an uninterrupted one). stop_after: leave after this many
-    iterations of this call (to test resuming). Returns the final parameters.
+    run_dir: folder for checkpoint.npz and log.jsonl (locked while training: `lock_run`). resume:
+    continue from its checkpoint (the rest of the run is then identical to an uninterrupted one).
+    stop_after: leave after this many iterations of this call (to test resuming). Ctrl-C saves a
+    checkpoint of the last finished iteration and raises `Interrupted`. Returns the final parameters.
     """
-    ckpt_path, log_path = os.path.join(run_dir, "checkpoint.npz"), os.path.join(run_dir, "log.jsonl")
     methods.check(cfg), inner_only(cfg), learning_rate(cfg, 0)    # bad names fail here, not later
     if not 0.0 <= cfg.ema < 1.0:
         raise ValueError(f"ema is the moving average's decay, in [0, 1) (0: off; e.g. 0.999); got {cfg.ema!r}")
+    with lock_run(run_dir):
+        return _train(cfg, run_dir, resume, progress, stop_after)
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C (or SIGTERM) stopped training; its message says where the checkpoint is."""
+
+
+def _train(cfg, run_dir, resume, progress, stop_after):
+    ckpt_path, log_path = os.path.join(run_dir, "checkpoint.npz"), os.path.join(run_dir, "log.jsonl")
     # 1. Data: both splits, in network units (images in [0, 1], states and torques of order one).
     train_set, heldout_set = ensure_datasets(cfg, progress)
     train_set = subset(train_set, cfg.tasks, cfg.demos)
     image_size = train_set["images"].shape[-2]
 
     # 2. Parameters, optimiser and random state: fresh, or exactly as the checkpoint left them.
+    world = train_set["metadata"]["world"]       # what the checkpoint records, to be checked against data
     if resume:
         ckpt = checkpoint.load(ckpt_path)
-        schedule = dict(iterations=cfg.iterations, log_every=cfg.log_every, eval_every=cfg.eval_every,
-                        eval_trials=cfg.eval_trials, checkpoint_every=cfg.checkpoint_every)
-        stored = dataclasses.replace(ckpt["config"], **schedule)
+        for dataset, path in ((train_set, cfg.train_data), (heldout_set, cfg.heldout_data)):
+            checkpoint.check_data(ckpt, dataset["metadata"], ckpt_path, path)   # e.g. the file was replaced
+        stored = dataclasses.replace(ckpt["config"], **{name: getattr(cfg, name) for name in RESUMABLE})
         if stored != cfg:
             differ = ", ".join(f"{f.name}: checkpoint {getattr(stored, f.name)!r}, now {getattr(cfg, f.name)!r}"
                                for f in dataclasses.fields(cfg) if getattr(stored, f.name) != getattr(cfg, f.name))
             raise ValueError(f"{ckpt_path!r} was trained with a different config ({differ}); resume with the "
-                             f"same profile and options (only iterations and the log/eval/checkpoint cadence "
-                             f"may change), or start a new run folder")
+                             f"same profile and options (only {', '.join(RESUMABLE)} may change), or start a "
+                             f"new run folder")
         params, adam, start, rng, net_cfg = (ckpt["params"], ckpt["adam"], ckpt["iteration"],
                                              ckpt["rng"], ckpt["network"])
         ema = ckpt["ema"]
         _truncate_log(log_path, start)
+        if ckpt["config"].lr != cfg.lr:
+            _log_now(log_path, {"iteration": start, "lr": cfg.lr, "lr_before": ckpt["config"].lr})
     else:
         if os.path.exists(ckpt_path):
             raise FileExistsError(f"{run_dir!r} already holds a run; use --resume, or another --run folder")
@@ -116,13 +181,12 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
         params = methods.init_params(cfg, net_cfg, rng)
         adam, start = optim.adam_init(params), 0
         ema = dict(params) if cfg.ema else None
-        os.makedirs(run_dir, exist_ok=True)
         open(log_path, "w").close()
-    last_good = start
     if cfg.method == "random":                   # nothing to train by gradient: pick the std, save, done
         params, scores = random_std(cfg, train_set)
         _log_now(log_path, {"iteration": 0, "random_std_success_on_training_colours": scores})
-        checkpoint.save(ckpt_path, params, optim.adam_init(params), cfg.iterations, rng, cfg, net_cfg)
+        checkpoint.save(ckpt_path, params, optim.adam_init(params), cfg.iterations, rng, cfg, net_cfg,
+                        world=world)
         return params
 
     # 3. Meta-training loop: sample tasks, adapt (eq. 1), score (eq. 2), meta-gradient, clip, Adam.
@@ -133,6 +197,8 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
                disable=not progress)
     t0 = time.perf_counter()
     pool = shards.make_pool(cfg.shards if cfg.method == "mil" else 1)
+    saved = start if resume else None            # the iteration of the checkpoint on disk, if any
+    finished = (params, adam, ema, start, rng.bit_generator.state)   # the state after the last whole iteration
     try:
         with open(log_path, "a") as log:
             for it in bar:
@@ -142,14 +208,18 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
                 if not np.isfinite(loss) or bad:
                     raise TrainingDiverged(
                         f"the meta-loss became {float(loss)} at iteration {it + 1}"
-                        f"{' (non-finite gradient of ' + ', '.join(bad) + ')' if bad else ''}; the last good "
-                        f"checkpoint ({ckpt_path}, iteration {last_good}) is kept. Lower --lr or --alpha "
-                        f"and start a new run from scratch, or --resume to retry from it.")
+                        f"{' (non-finite gradient of ' + ', '.join(bad) + ')' if bad else ''}; " +
+                        (f"the last good checkpoint ({ckpt_path}, iteration {saved}) is kept: --resume with a "
+                         f"smaller --lr to retry from it, or start a new run with a smaller --lr or --alpha."
+                         if saved is not None else
+                         f"no checkpoint was saved before it. Start a new run with a smaller --lr or --alpha "
+                         f"(or a smaller --checkpoint-every, to keep one)."))
                 params, adam = optim.adam_step(params, maml.clip_gradients(grads, cfg.clip), adam,
                                               learning_rate(cfg, it))
                 if ema is not None:
                     ema = checkpoint.update_ema(ema, params, cfg.ema)
                 done = it + 1
+                finished = (params, adam, ema, done, rng.bit_generator.state)
                 if done % cfg.log_every == 0:
                     _log(log, {"iteration": done, "meta_loss": float(loss),
                                "seconds": round(time.perf_counter() - t0, 2)})
@@ -161,9 +231,16 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
                     _log(log, {"iteration": done, "heldout_success": r["rate"], "trials": r["trials"]})
                     bar.set_postfix(meta_loss=f"{float(loss):.3f}", heldout=f"{r['rate']:.2f}")
                 if done % cfg.checkpoint_every == 0 or done == end:
-                    log.flush()
-                    checkpoint.save(ckpt_path, params, adam, done, rng, cfg, net_cfg, ema)
-                    last_good = done
+                    checkpoint.save(ckpt_path, params, adam, done, rng, cfg, net_cfg, ema, world)
+                    saved = done
+    except KeyboardInterrupt:
+        bar.close()
+        params, adam, ema, done, rng_state = finished
+        if done != saved:                         # save where it stopped; resume goes on from there
+            rng.bit_generator.state = rng_state
+            checkpoint.save(ckpt_path, params, adam, done, rng, cfg, net_cfg, ema, world)
+        raise Interrupted(f"interrupted at iteration {done}; checkpoint: {ckpt_path} "
+                          f"(continue with --resume)") from None
     finally:
         if pool is not None:
             pool.close()
@@ -186,6 +263,7 @@ def random_std(cfg, train_set):
 
 def _log(f, record):
     f.write(json.dumps(record) + "\n")
+    f.flush()                                    # `tail -f log.jsonl` shows each line as it is written
 
 
 def _log_now(path, record):
@@ -260,6 +338,7 @@ def main(argv=None):
         p.error(f"argument --shards: the processes share each demo's {frames} frames, so 1 to {frames}; "
                 f"got {cfg.shards}")
     host.tune_malloc()
+    signal.signal(signal.SIGTERM, _terminate)    # a plain kill stops training as Ctrl-C does
     t0 = time.perf_counter()
     train(cfg, run, resume=args.resume)
     done = "picked the random policy's torque std" if cfg.method == "random" else \
@@ -267,5 +346,9 @@ def main(argv=None):
     print(f"{done} in {time.perf_counter() - t0:.0f} s; checkpoint: {os.path.join(run, 'checkpoint.npz')}")
 
 
+def _terminate(signum, frame):
+    raise KeyboardInterrupt
+
+
 if __name__ == "__main__":
-    cli.run(main, failures=(TrainingDiverged, shards.ShardError))
+    cli.run(main, failures=(TrainingDiverged, RunLocked, shards.ShardError))

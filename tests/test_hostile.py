@@ -3,10 +3,14 @@ exit status 2 (bad input) or 1 (a failure), ONE line on stderr naming the flag o
 no traceback, and nothing written. Commands run in-process through `cli.run`, as `python -m` runs them;
 `test_python_m_exits_with_the_status_and_one_line` checks each module's `__main__` is wired to it."""
 import argparse
+import dataclasses
+import json
 import os
 import pathlib
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -26,8 +30,15 @@ def refused(capsys, main, argv, status=2, failures=()):
         cli.run(main, argv, failures)
     out, err = capsys.readouterr()
     assert exit_.value.code == status, err
-    assert len(err.splitlines()) == 1 and err.startswith("error: ") and "Traceback" not in err, err
-    return err.strip(), out
+    shown = shown_on_a_terminal(err)
+    assert len(shown.splitlines()) == 1 and shown.startswith("error: ") and "Traceback" not in err, err
+    return shown.strip(), out
+
+
+def shown_on_a_terminal(text):
+    """What a terminal shows of `text`: of each line, what follows its last carriage return (a progress
+    bar wiped with "\r   \r" leaves nothing)."""
+    return "\n".join(line.split("\r")[-1] for line in text.split("\n"))
 
 
 def nothing_written(folder):
@@ -57,8 +68,8 @@ def test_collect_refuses_fewer_than_one_worker(capsys, tmp_path, workers):
 def test_collect_uses_no_more_processes_than_cores_and_demos(capsys, tmp_path):
     out = tmp_path / "new" / "d.npz"                               # its folder is created at the end
     collect.main(["--out", str(out), *TINY[:-1], HUGE])
-    used = data.load(out)["metadata"]["workers"]
-    assert used == min(os.cpu_count(), 2 * 2) and f"with {used} process" in capsys.readouterr().out
+    used = min(os.cpu_count(), 2 * 2)                               # the cores, or the 4 demos if fewer
+    assert f"with {used} process{'es' if used > 1 else ''} in" in capsys.readouterr().out
 
 
 # --- 4. sizes: counts of zero, and what cannot fit in memory -----------------------------------------
@@ -156,6 +167,197 @@ def test_train_refuses_a_negative_evaluation_period(capsys, tmp_path):
     line, _ = refused(capsys, train.main, ["--profile", "tiny", "--run", str(tmp_path / "run"), "--eval-every", "-1"])
     assert "argument --eval-every: expected a whole number >= 0" in line
     nothing_written(tmp_path)
+
+
+# --- 2, 7, 8, 13. a training process: its folder, its end ------------------------------------------------
+# (2, shard workers dying with the training process: tests/test_shards.py)
+
+@pytest.fixture
+def tiny_cfg(tiny_datasets):
+    train_path, heldout_path = tiny_datasets
+    return dataclasses.replace(config.PROFILES["tiny"], train_data=train_path, heldout_data=heldout_path,
+                               iterations=6, checkpoint_every=100)
+
+
+def _interrupt_at(monkeypatch, call):
+    """Make the `call`-th meta-gradient (1-based) raise KeyboardInterrupt, as Ctrl-C in the middle of it."""
+    real, calls = methods.meta_gradient, []
+
+    def meta_gradient(*args):
+        calls.append(1)
+        if len(calls) == call:
+            raise KeyboardInterrupt
+        return real(*args)
+    monkeypatch.setattr(methods, "meta_gradient", meta_gradient)
+
+
+def test_ctrl_c_saves_the_last_finished_iteration_and_resume_continues_exactly(tmp_path, tiny_cfg, monkeypatch):
+    whole = train.train(tiny_cfg, tmp_path / "whole", progress=False)
+    _interrupt_at(monkeypatch, 4)
+    with pytest.raises(train.Interrupted, match=r"interrupted at iteration 3; checkpoint: .*checkpoint.npz "
+                                                r"\(continue with --resume\)"):
+        train.train(tiny_cfg, tmp_path / "stopped", progress=False)
+    assert checkpoint.load(tmp_path / "stopped" / "checkpoint.npz")["iteration"] == 3
+    monkeypatch.undo()
+    resumed = train.train(tiny_cfg, tmp_path / "stopped", resume=True, progress=False)
+    assert all(np.array_equal(resumed[k], whole[k]) for k in whole)
+    assert (tmp_path / "stopped" / "log.jsonl").read_text() .count("meta_loss") == 6
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_a_signalled_training_saves_says_where_in_one_line_and_exits_130(tmp_path, tiny_datasets, sig):
+    run = tmp_path / "run"
+    command = [sys.executable, "-m", "oneshot.train", "--profile", "tiny", "--run", str(run), "--iterations",
+               "100000", "--checkpoint-every", "100000", "--train-data", tiny_datasets[0],
+               "--heldout-data", tiny_datasets[1]]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    try:
+        log = run / "log.jsonl"
+        deadline = time.monotonic() + 120
+        while not (log.exists() and log.read_text().count("\n") >= 2) and time.monotonic() < deadline:
+            time.sleep(0.1)                                   # two iterations done: it is training
+        process.send_signal(getattr(signal, sig))
+        out, err = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    assert process.returncode == 130, err
+    last = err.strip().splitlines()[-1]                   # tqdm's bar may precede it
+    iteration = checkpoint.load(run / "checkpoint.npz")["iteration"]
+    assert iteration >= 2 and last == (f"error: interrupted at iteration {iteration}; checkpoint: "
+                                       f"{run / 'checkpoint.npz'} (continue with --resume)")
+    assert "Traceback" not in err and not [p for p in run.iterdir() if p.name.startswith(".tmp")]
+
+
+def test_a_second_training_in_the_same_folder_is_refused(capsys, tmp_path, tiny_cfg):
+    run = tmp_path / "run"
+    with train.lock_run(str(run)):                        # another process would hold it so
+        line, _ = refused(capsys, train.main, ["--profile", "tiny", "--run", str(run),
+                                               "--train-data", tiny_cfg.train_data,
+                                               "--heldout-data", tiny_cfg.heldout_data],
+                          status=1, failures=(train.RunLocked,))
+    assert line == (f"error: another process (pid {os.getpid()}) is training in {str(run)!r}; wait for it to "
+                    f"end, or use another --run folder")
+    assert [p.name for p in run.iterdir()] == [".lock"]   # nothing else was written
+    train.train(tiny_cfg, run, progress=False)            # free again once the owner is gone
+
+
+def test_resume_removes_what_a_killed_checkpoint_write_left(tmp_path, tiny_cfg):
+    run = tmp_path / "run"
+    train.train(dataclasses.replace(tiny_cfg, iterations=2), run, progress=False)
+    (run / ".tmp-kill9.npz").write_bytes(b"half a checkpoint")
+    train.train(tiny_cfg, run, resume=True, progress=False)
+    assert not (run / ".tmp-kill9.npz").exists()
+
+
+def test_a_run_that_fails_before_starting_leaves_no_folder(tmp_path, tiny_cfg):
+    broken = tmp_path / "broken.npz"
+    broken.write_bytes(b"not a dataset")
+    with pytest.raises(data.DatasetError):
+        train.train(dataclasses.replace(tiny_cfg, train_data=str(broken)), tmp_path / "run", progress=False)
+    assert [p.name for p in tmp_path.iterdir()] == ["broken.npz"]
+
+
+def test_divergence_names_the_checkpoint_only_if_there_is_one(tmp_path, tiny_cfg, monkeypatch):
+    real = methods.meta_gradient
+    monkeypatch.setattr(methods, "meta_gradient", lambda *a: (np.nan, real(*a)[1]))
+    with pytest.raises(train.TrainingDiverged, match="at iteration 1; no checkpoint was saved before it"):
+        train.train(tiny_cfg, tmp_path / "run", progress=False)
+    assert not (tmp_path / "run" / "checkpoint.npz").exists()
+    monkeypatch.undo()
+    train.train(dataclasses.replace(tiny_cfg, iterations=2), tmp_path / "run2", progress=False)
+    monkeypatch.setattr(methods, "meta_gradient", lambda *a: (np.nan, real(*a)[1]))
+    path = tmp_path / "run2" / "checkpoint.npz"
+    with pytest.raises(train.TrainingDiverged, match=f"the last good checkpoint \\({path}, iteration 2\\) is "
+                                                     f"kept: --resume with a smaller --lr"):
+        train.train(tiny_cfg, tmp_path / "run2", resume=True, progress=False)
+
+
+def test_resume_may_lower_the_learning_rate_and_logs_it(tmp_path, tiny_cfg):
+    run = tmp_path / "run"
+    train.train(dataclasses.replace(tiny_cfg, iterations=2), run, progress=False)
+    train.train(dataclasses.replace(tiny_cfg, lr=tiny_cfg.lr / 10), run, resume=True, progress=False)
+    assert checkpoint.load(run / "checkpoint.npz")["config"].lr == tiny_cfg.lr / 10
+    assert {"iteration": 2, "lr": tiny_cfg.lr / 10, "lr_before": tiny_cfg.lr} in [
+        json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+    with pytest.raises(ValueError, match="seed: checkpoint 0, now 1"):
+        train.train(dataclasses.replace(tiny_cfg, seed=1), run, resume=True, progress=False)
+
+
+# --- 3, 5, 6. files that do not fit, are damaged, or hold a diverged policy -------------------------------
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory, tiny_datasets):
+    """A tiny profile's checkpoint after one iteration (it records the 32x32, 20-step world of its data)."""
+    run = tmp_path_factory.mktemp("trained")
+    cfg = dataclasses.replace(config.PROFILES["tiny"], train_data=tiny_datasets[0], heldout_data=tiny_datasets[1],
+                              iterations=1)
+    train.train(cfg, run, progress=False)
+    return str(run / "checkpoint.npz")
+
+
+@pytest.fixture(scope="module")
+def heldout_16(tmp_path_factory):
+    """Held-out demos of 16x16 images: not what any checkpoint here was trained on."""
+    path = tmp_path_factory.mktemp("h16") / "heldout16.npz"
+    data.save(collect.collect(2, 2, "heldout", 1, 1, WorldConfig(image_size=16, horizon=8), progress=False), path)
+    return str(path)
+
+
+def test_evaluate_refuses_data_of_another_image_size_naming_both(capsys, trained, heldout_16):
+    line, out = refused(capsys, evaluate.main, [trained, "--heldout", heldout_16, "--train", ""])
+    assert line == (f"error: {trained} was trained on 32x32 images but {heldout_16} holds 16x16 images; "
+                    f"use data collected with --image-size 32")
+    assert out == ""                                              # refused before the first trial
+
+
+def test_the_shipped_policy_refuses_64x64_data(capsys, tmp_path):
+    """The issue's case: the shipped 32x32 policy on 64x64 held-out data reported 4/12 instead of 9/12."""
+    shipped = str(ROOT / "oneshot" / "pretrained" / "mil_default.npz")
+    heldout = str(tmp_path / "heldout64.npz")
+    data.save(collect.collect(2, 2, "heldout", 1, 1, WorldConfig(image_size=64, horizon=8), progress=False), heldout)
+    line, _ = refused(capsys, evaluate.main, [shipped, "--heldout", heldout, "--train", ""])
+    assert "trained on 32x32 images" in line and "holds 64x64 images" in line
+
+
+def test_resume_refuses_a_training_set_replaced_by_another_image_size(tmp_path, tiny_cfg):
+    run = tmp_path / "run"
+    train.train(dataclasses.replace(tiny_cfg, iterations=1), run, progress=False)
+    other = tmp_path / "train16.npz"
+    data.save(collect.collect(3, 3, "train", 0, 1, WorldConfig(image_size=16, horizon=8), progress=False), other)
+    with pytest.raises(checkpoint.CheckpointError, match="trained on 32x32 images but .*train16.npz holds 16x16"):
+        train.train(dataclasses.replace(tiny_cfg, train_data=str(other)), run, resume=True, progress=False)
+
+
+def test_the_demo_acts_in_the_world_the_policy_was_trained_in(trained):
+    assert checkpoint.world_config(checkpoint.load(trained)).image_size == 32
+    small = checkpoint.load(trained)
+    small["world"] = None                                         # an older checkpoint: its network's size
+    small["network"] = dataclasses.replace(small["network"], image_size=8)
+    assert checkpoint.world_config(small) == WorldConfig(image_size=8)
+
+
+@pytest.mark.parametrize("damaged", ["checkpoint", "dataset"])
+def test_evaluate_names_a_damaged_file(capsys, tmp_path, trained, tiny_datasets, damaged):
+    source = trained if damaged == "checkpoint" else tiny_datasets[1]
+    broken = tmp_path / f"broken-{damaged}.npz"
+    raw = bytearray(pathlib.Path(source).read_bytes())
+    raw[len(raw) // 2] ^= 0x10                                    # one bit, in the middle of the arrays
+    broken.write_bytes(bytes(raw))
+    argv = [str(broken), "--heldout", tiny_datasets[1]] if damaged == "checkpoint" else [trained, "--heldout", str(broken)]
+    line, out = refused(capsys, evaluate.main, argv + ["--train", ""])
+    assert repr(str(broken)) in line and ("re-train it" in line or "re-create it" in line) and out == ""
+
+
+def test_evaluate_says_a_diverged_policy_diverged(capsys, tmp_path, trained, tiny_datasets):
+    """A finite checkpoint whose torques overflow: a named error, not "action contains NaN" from the world."""
+    ckpt = checkpoint.load(trained)
+    huge = {k: np.full_like(v, 1e30) for k, v in ckpt["params"].items()}
+    path = tmp_path / "diverged.npz"
+    checkpoint.save(path, huge, optim.adam_init(huge), 1, ckpt["rng"], ckpt["config"], ckpt["network"],
+                    world=ckpt["world"])
+    line, _ = refused(capsys, evaluate.main, [str(path), "--heldout", tiny_datasets[1], "--train", ""])
+    assert "the policy's torques are" in line and "use an earlier checkpoint" in line
 
 
 # --- 10. demo --------------------------------------------------------------------------------------------

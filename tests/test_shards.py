@@ -1,6 +1,10 @@
 """Frame shards: several processes computing one second-order meta-gradient (oneshot.shards)."""
 import dataclasses
 import os
+import signal
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -117,3 +121,54 @@ def test_bad_settings_name_the_fix(rng):
     with pytest.raises(ValueError, match="an int >= 1; got 0"):
         shards.make_pool(0)
     assert [d[0].shape[1] for d in shards.split_frames(adapt, 3)] == [1, 1, 2]
+
+
+WORKER_SCRIPT = """
+import sys, time
+import numpy as np
+sys.path.insert(0, {tests!r})
+from test_shards import _setup
+from oneshot import shards
+settings, params, adapt, evaluate = _setup(np.random.default_rng(0))
+pool = shards.make_pool(2)
+shards.meta_gradient(params, adapt, evaluate, settings, 2, pool)
+print(pool.workers[0][0].pid, flush=True)
+time.sleep(600)
+"""
+
+
+@pytest.mark.parametrize("how", ["SIGKILL", "SIGTERM"])
+def test_shard_workers_die_with_the_training_process(how):
+    """Killing the training process (kill -9, or a plain kill) ends its shard workers too, rather than
+    leaving them reparented and blocked (issue case 2)."""
+    script = WORKER_SCRIPT.format(tests=os.path.dirname(os.path.abspath(__file__)))
+    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    worker = None
+    try:
+        worker = int(parent.stdout.readline())
+        assert os.path.exists(f"/proc/{worker}") or not os.path.exists("/proc")
+        parent.send_signal(getattr(signal, how))
+        parent.wait(30)
+        deadline = time.monotonic() + 10
+        while _alive(worker) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _alive(worker), f"shard worker {worker} outlived its parent"
+    finally:
+        parent.kill()
+        if worker is not None and _alive(worker):          # the test failed: leave nothing behind
+            os.kill(worker, signal.SIGKILL)
+
+
+def _alive(pid):
+    """Whether process `pid` exists and is not a zombie."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return "\nState:\tZ" not in f.read()
+    except FileNotFoundError:
+        return False
+    except OSError:
+        try:
+            os.kill(pid, 0)
+            return True
+        except ProcessLookupError:
+            return False

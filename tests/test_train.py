@@ -50,8 +50,8 @@ def test_resume_gives_the_parameters_of_an_uninterrupted_run(tiny, tmp_path, sha
     assert [r["iteration"] for r in lines] == list(range(1, 9))          # no duplicated log lines
     with pytest.raises(FileExistsError, match="--resume"):
         train.train(cfg, tmp_path / "whole", progress=False)
-    with pytest.raises(ValueError, match=r"different config \(lr: checkpoint .*, now 0\.01\)"):
-        train.train(dataclasses.replace(cfg, lr=0.01), tmp_path / "whole", resume=True, progress=False)
+    with pytest.raises(ValueError, match=r"different config \(alpha: checkpoint .*, now 0\.01\)"):
+        train.train(dataclasses.replace(cfg, alpha=0.01), tmp_path / "whole", resume=True, progress=False)
 
 
 def test_nan_stops_training_and_keeps_the_last_good_checkpoint(tiny, tmp_path, monkeypatch):
