@@ -65,6 +65,7 @@ def _ignore_sigint():
     only the parent stops, and terminates them, instead of every worker printing a traceback. (A pool's
     workers end by themselves when the parent is killed outright: measured, they are gone within 2 s.)"""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)        # terminate() ends them quietly, whatever the parent's handler
 
 
 def collect(n_tasks, demos_per_task, split="train", seed=0, workers=None, world_cfg=None,

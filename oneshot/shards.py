@@ -255,6 +255,7 @@ def _serve(exchange, rank, params, adapt, evaluate, conn, parent):
     It dies with the training process (`parent`), however that ends."""
     die_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)      # Ctrl-C is for the training process, which stops us
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)     # not the training process's handler (train.main)
     blas_threads(1)
     exchange.rank = rank
     while True:

@@ -45,7 +45,18 @@ def learning_rate(cfg, iteration):
 
 
 class TrainingDiverged(RuntimeError):
-    """The meta-loss or meta-gradient became NaN or inf."""
+    """The meta-loss or meta-gradient became NaN or inf (or the policy's torques did)."""
+
+
+def diverged(what, ckpt_path, saved):
+    """TrainingDiverged saying `what` happened and what to do: retry from the last good checkpoint
+    (iteration `saved`) with a smaller step, or, if none was saved (`saved` is None), start again."""
+    if saved is not None:
+        return TrainingDiverged(f"{what}; the last good checkpoint ({ckpt_path}, iteration {saved}) is kept: "
+                                f"--resume with a smaller --lr to retry from it, or start a new run with a "
+                                f"smaller --lr or --alpha.")
+    return TrainingDiverged(f"{what}; no checkpoint was saved before it. Start a new run with a smaller --lr "
+                            f"or --alpha (or a smaller --checkpoint-every, to keep one).")
 
 
 # --- data ------------------------------------------------------------------------------------------
@@ -98,16 +109,18 @@ def lock_run(run_dir):
     instead of interleaving its checkpoints and log with ours. The lock (flock on run_dir/.lock) goes
     with the process, however it ends. Temporary files a killed process left are removed; a folder
     made here and left with nothing but the lock (the run failed before starting) is removed too."""
+    if os.path.exists(run_dir) and not os.path.isdir(run_dir):
+        raise FileExistsError(f"--run {run_dir!r} is a file; name a folder for the run")
     created = not os.path.exists(run_dir)
     os.makedirs(run_dir, exist_ok=True)
-    try:
-        with open(os.path.join(run_dir, ".lock"), "a+") as lock:
-            _own(lock, run_dir)
+    with open(os.path.join(run_dir, ".lock"), "a+") as lock:
+        _own(lock, run_dir)                      # RunLocked: the folder is the owner's, left alone
+        try:
             yield
-    except BaseException:
-        if created and os.listdir(run_dir) == [".lock"]:
-            shutil.rmtree(run_dir, ignore_errors=True)
-        raise
+        except BaseException:
+            if created and os.listdir(run_dir) == [".lock"]:
+                shutil.rmtree(run_dir, ignore_errors=True)
+            raise
 
 
 def _own(lock, run_dir):
@@ -123,8 +136,9 @@ def _own(lock, run_dir):
     lock.truncate()
     lock.write(f"{os.getpid()}\n")
     lock.flush()
-    for stale in glob.glob(os.path.join(glob.escape(run_dir), ".tmp-*")):   # a write a kill interrupted
-        os.remove(stale)
+    for stale in glob.glob(os.path.join(glob.escape(run_dir), ".tmp-*.npz")):   # a checkpoint write a kill
+        with contextlib.suppress(FileNotFoundError):                               # interrupted
+            os.remove(stale)
 
 
 def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
@@ -172,7 +186,8 @@ def _train(cfg, run_dir, resume, progress, stop_after):
         ema = ckpt["ema"]
         _truncate_log(log_path, start)
         if ckpt["config"].lr != cfg.lr:
-            _log_now(log_path, {"iteration": start, "lr": cfg.lr, "lr_before": ckpt["config"].lr})
+            _log_now(log_path, {"iteration": start, "lr": cfg.lr, "lr_before": ckpt["config"].lr,
+                                "step_now": learning_rate(cfg, start)})
     else:
         if os.path.exists(ckpt_path):
             raise FileExistsError(f"{run_dir!r} already holds a run; use --resume, or another --run folder")
@@ -206,30 +221,29 @@ def _train(cfg, run_dir, resume, progress, stop_after):
                 loss, grads = methods.meta_gradient(cfg, params, adapt_demos, eval_demos, pool)
                 bad = [k for k, g in grads.items() if not np.all(np.isfinite(g))]
                 if not np.isfinite(loss) or bad:
-                    raise TrainingDiverged(
-                        f"the meta-loss became {float(loss)} at iteration {it + 1}"
-                        f"{' (non-finite gradient of ' + ', '.join(bad) + ')' if bad else ''}; " +
-                        (f"the last good checkpoint ({ckpt_path}, iteration {saved}) is kept: --resume with a "
-                         f"smaller --lr to retry from it, or start a new run with a smaller --lr or --alpha."
-                         if saved is not None else
-                         f"no checkpoint was saved before it. Start a new run with a smaller --lr or --alpha "
-                         f"(or a smaller --checkpoint-every, to keep one)."))
+                    raise diverged(f"the meta-loss became {float(loss)} at iteration {it + 1}"
+                                   f"{' (non-finite gradient of ' + ', '.join(bad) + ')' if bad else ''}",
+                                   ckpt_path, saved)
                 params, adam = optim.adam_step(params, maml.clip_gradients(grads, cfg.clip), adam,
                                               learning_rate(cfg, it))
                 if ema is not None:
                     ema = checkpoint.update_ema(ema, params, cfg.ema)
                 done = it + 1
-                finished = (params, adam, ema, done, rng.bit_generator.state)
                 if done % cfg.log_every == 0:
                     _log(log, {"iteration": done, "meta_loss": float(loss),
                                "seconds": round(time.perf_counter() - t0, 2)})
                     bar.set_postfix(meta_loss=f"{float(loss):.3f}")
                 if cfg.eval_every and done % cfg.eval_every == 0:
                     condition = methods.conditioner(cfg, params if ema is None else ema, seed=done)
-                    r = imitation.one_shot_success(condition, heldout_set, cfg.eval_trials, seed=done,
-                                                   progress=False)
+                    try:
+                        r = imitation.one_shot_success(condition, heldout_set, cfg.eval_trials, seed=done,
+                                                       progress=False)
+                    except imitation.PolicyDiverged:
+                        raise diverged(f"the policy's torques became NaN or inf in the held-out check at "
+                                       f"iteration {done}", ckpt_path, saved) from None
                     _log(log, {"iteration": done, "heldout_success": r["rate"], "trials": r["trials"]})
                     bar.set_postfix(meta_loss=f"{float(loss):.3f}", heldout=f"{r['rate']:.2f}")
+                finished = (params, adam, ema, done, rng.bit_generator.state)   # iteration `done` is whole
                 if done % cfg.checkpoint_every == 0 or done == end:
                     checkpoint.save(ckpt_path, params, adam, done, rng, cfg, net_cfg, ema, world)
                     saved = done
@@ -310,6 +324,9 @@ def main(argv=None):
                  if getattr(args, f.name) is not None}
     cfg = dataclasses.replace(PROFILES[args.profile], **overrides)
     run = args.run or os.path.join("runs", args.profile)
+    if args.resume:          # what --resume may change, as the checkpoint has it unless a flag says otherwise
+        stored = checkpoint.load(os.path.join(run, "checkpoint.npz"))["config"]
+        cfg = dataclasses.replace(cfg, **{k: getattr(stored, k) for k in RESUMABLE if k not in overrides})
     # Before any work: what must fit in memory (the datasets to collect, a meta-batch's images) and
     # how many processes share the frames. Frames and image size: the training set's, if it exists.
     world = WorldConfig(palette=PaletteConfig(mode=cfg.palette))
@@ -338,9 +355,12 @@ def main(argv=None):
         p.error(f"argument --shards: the processes share each demo's {frames} frames, so 1 to {frames}; "
                 f"got {cfg.shards}")
     host.tune_malloc()
-    signal.signal(signal.SIGTERM, _terminate)    # a plain kill stops training as Ctrl-C does
     t0 = time.perf_counter()
-    train(cfg, run, resume=args.resume)
+    previous = signal.signal(signal.SIGTERM, _terminate)    # a plain kill stops training as Ctrl-C does
+    try:
+        train(cfg, run, resume=args.resume)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     done = "picked the random policy's torque std" if cfg.method == "random" else \
         f"trained {cfg.iterations} meta-iterations"
     print(f"{done} in {time.perf_counter() - t0:.0f} s; checkpoint: {os.path.join(run, 'checkpoint.npz')}")

@@ -191,7 +191,9 @@ def _interrupt_at(monkeypatch, call):
     monkeypatch.setattr(methods, "meta_gradient", meta_gradient)
 
 
-def test_ctrl_c_saves_the_last_finished_iteration_and_resume_continues_exactly(tmp_path, tiny_cfg, monkeypatch):
+@pytest.mark.parametrize("extras", [{}, {"ema": 0.5, "eval_every": 3, "eval_trials": 1}])
+def test_ctrl_c_saves_the_last_finished_iteration_and_resume_continues_exactly(tmp_path, tiny_cfg, monkeypatch, extras):
+    tiny_cfg = dataclasses.replace(tiny_cfg, **extras)          # with a moving average and held-out checks too
     whole = train.train(tiny_cfg, tmp_path / "whole", progress=False)
     _interrupt_at(monkeypatch, 4)
     with pytest.raises(train.Interrupted, match=r"interrupted at iteration 3; checkpoint: .*checkpoint.npz "
@@ -201,7 +203,12 @@ def test_ctrl_c_saves_the_last_finished_iteration_and_resume_continues_exactly(t
     monkeypatch.undo()
     resumed = train.train(tiny_cfg, tmp_path / "stopped", resume=True, progress=False)
     assert all(np.array_equal(resumed[k], whole[k]) for k in whole)
-    assert (tmp_path / "stopped" / "log.jsonl").read_text() .count("meta_loss") == 6
+    ends = [checkpoint.load(tmp_path / run / "checkpoint.npz") for run in ("whole", "stopped")]
+    assert (ends[0]["ema"] is None) == (not extras)
+    assert all(np.array_equal(ends[0]["ema"][k], ends[1]["ema"][k]) for k in ends[0]["ema"] or {})
+    logs = [[{k: v for k, v in json.loads(line).items() if k != "seconds"}
+             for line in (tmp_path / run / "log.jsonl").read_text().splitlines()] for run in ("whole", "stopped")]
+    assert logs[0] == logs[1] and len(logs[0]) == 6 + 2 * bool(extras)   # every line once (and 2 checks)
 
 
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
@@ -211,7 +218,8 @@ def test_a_signalled_training_saves_says_where_in_one_line_and_exits_130(tmp_pat
                "100000", "--checkpoint-every", "100000", "--train-data", tiny_datasets[0],
                "--heldout-data", tiny_datasets[1]]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               env=dict(os.environ, PYTHONPATH=str(ROOT)))
+                               env=dict(os.environ, PYTHONPATH=str(ROOT)),   # SIGINT as a terminal has it (a
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # background shell ignores it)
     try:
         log = run / "log.jsonl"
         deadline = time.monotonic() + 120
@@ -229,17 +237,23 @@ def test_a_signalled_training_saves_says_where_in_one_line_and_exits_130(tmp_pat
     assert "Traceback" not in err and not [p for p in run.iterdir() if p.name.startswith(".tmp")]
 
 
-def test_a_second_training_in_the_same_folder_is_refused(capsys, tmp_path, tiny_cfg):
+def test_a_second_training_in_the_same_folder_is_refused(tmp_path, tiny_cfg):
     run = tmp_path / "run"
-    with train.lock_run(str(run)):                        # another process would hold it so
-        line, _ = refused(capsys, train.main, ["--profile", "tiny", "--run", str(run),
-                                               "--train-data", tiny_cfg.train_data,
-                                               "--heldout-data", tiny_cfg.heldout_data],
-                          status=1, failures=(train.RunLocked,))
-    assert line == (f"error: another process (pid {os.getpid()}) is training in {str(run)!r}; wait for it to "
-                    f"end, or use another --run folder")
-    assert [p.name for p in run.iterdir()] == [".lock"]   # nothing else was written
+    with train.lock_run(str(run)):                        # as a training process holds it
+        done = subprocess.run([sys.executable, "-m", "oneshot.train", "--profile", "tiny", "--run", str(run),
+                               "--train-data", tiny_cfg.train_data, "--heldout-data", tiny_cfg.heldout_data],
+                              capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
+    assert done.returncode == 1 and done.stderr == (f"error: another process (pid {os.getpid()}) is training in "
+                                                    f"{str(run)!r}; wait for it to end, or use another --run folder\n")
+    assert [p.name for p in run.iterdir()] == [".lock"]   # nothing else was written, and the folder kept
     train.train(tiny_cfg, run, progress=False)            # free again once the owner is gone
+
+
+def test_a_run_folder_that_is_a_file_is_refused(capsys, tmp_path, tiny_cfg):
+    (tmp_path / "run").write_text("")
+    line, _ = refused(capsys, train.main, ["--profile", "tiny", "--run", str(tmp_path / "run"),
+                                           "--train-data", tiny_cfg.train_data, "--heldout-data", tiny_cfg.heldout_data])
+    assert "is a file; name a folder for the run" in line
 
 
 def test_resume_removes_what_a_killed_checkpoint_write_left(tmp_path, tiny_cfg):
@@ -273,12 +287,26 @@ def test_divergence_names_the_checkpoint_only_if_there_is_one(tmp_path, tiny_cfg
         train.train(tiny_cfg, tmp_path / "run2", resume=True, progress=False)
 
 
+def test_a_bare_resume_keeps_the_runs_own_length_and_step(capsys, tmp_path, tiny_cfg):
+    """`--resume` alone (what the Ctrl-C message says to type) continues with the run's --lr and
+    --iterations, not the profile's."""
+    run = str(tmp_path / "run")
+    given = ["--profile", "tiny", "--run", run, "--train-data", tiny_cfg.train_data, "--heldout-data",
+             tiny_cfg.heldout_data]
+    train.train(dataclasses.replace(tiny_cfg, lr=1e-4, iterations=2, checkpoint_every=1), run, progress=False,
+                stop_after=1)
+    train.main(given + ["--resume"])
+    kept = checkpoint.load(os.path.join(run, "checkpoint.npz"))
+    assert (kept["config"].lr, kept["iteration"]) == (1e-4, 2) != (config.PROFILES["tiny"].lr, config.PROFILES["tiny"].iterations)
+    capsys.readouterr()
+
+
 def test_resume_may_lower_the_learning_rate_and_logs_it(tmp_path, tiny_cfg):
     run = tmp_path / "run"
     train.train(dataclasses.replace(tiny_cfg, iterations=2), run, progress=False)
     train.train(dataclasses.replace(tiny_cfg, lr=tiny_cfg.lr / 10), run, resume=True, progress=False)
     assert checkpoint.load(run / "checkpoint.npz")["config"].lr == tiny_cfg.lr / 10
-    assert {"iteration": 2, "lr": tiny_cfg.lr / 10, "lr_before": tiny_cfg.lr} in [
+    assert {"iteration": 2, "lr": tiny_cfg.lr / 10, "lr_before": tiny_cfg.lr, "step_now": tiny_cfg.lr / 10} in [
         json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
     with pytest.raises(ValueError, match="seed: checkpoint 0, now 1"):
         train.train(dataclasses.replace(tiny_cfg, seed=1), run, resume=True, progress=False)

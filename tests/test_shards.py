@@ -1,6 +1,7 @@
 """Frame shards: several processes computing one second-order meta-gradient (oneshot.shards)."""
 import dataclasses
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -145,6 +146,8 @@ def test_shard_workers_die_with_the_training_process(how):
     parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
     worker = None
     try:
+        if not select.select([parent.stdout], [], [], 300)[0]:
+            pytest.fail("the shard pool did not start within 300 s")
         worker = int(parent.stdout.readline())
         assert os.path.exists(f"/proc/{worker}") or not os.path.exists("/proc")
         parent.send_signal(getattr(signal, how))
