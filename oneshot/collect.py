@@ -144,6 +144,9 @@ def main(argv=None):
     p.add_argument("--workers", type=cli.positive_int, default=None,
                    help="processes (default and at most: the cores, and the demos)")
     p.add_argument("--image-size", type=cli.at_least(8), default=32, help="image side in pixels (32 or 64)")
+    p.add_argument("--palette", choices=palette.MODES, default="hues",
+                   help="the colours: 'hues' (default: 36 meta-training, 12 held out) or 'grid' (324 and 108; "
+                        "oneshot.palette)")
     p.add_argument("--horizon", type=cli.at_least(5, " (success is judged on the final fifth)"), default=20,
                    help="time steps per demonstration")
     p.add_argument("--noise", type=cli.finite_non_negative_float, default=0.0,
@@ -151,7 +154,8 @@ def main(argv=None):
     args = p.parse_args(argv)
     # Everything that can be checked is checked before the work: the task count against the split,
     # and that the dataset fits in memory (not after building a job list and allocating terabytes).
-    world_cfg = WorldConfig(image_size=args.image_size, horizon=args.horizon)
+    world_cfg = WorldConfig(image_size=args.image_size, horizon=args.horizon,
+                            palette=palette.PaletteConfig(mode=args.palette))
     try:
         task_colours(args.tasks, args.split, args.seed, world_cfg.palette)
     except ValueError as e:

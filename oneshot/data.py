@@ -15,21 +15,20 @@ A dataset is a plain dict of arrays plus a "metadata" dict (N tasks, K demos per
 
 `save` writes atomically (a temporary file, then a rename), so a crash never leaves half a file, and
 its bytes depend on the content only: the same dataset saved twice, or collected with another number
-of worker processes, is the same file. `load` checks the format version, keys, dtypes, shapes, the
+of worker processes, is the same file (`npz.write`). `load` checks the file as `npz.Reader` does
+(every .npy header before any array is read), then the format version, keys, dtypes, shapes, the
 metadata the package reads and a SHA-256 checksum of the arrays, and says exactly what is wrong with
 a bad, damaged or truncated file: every failure is a DatasetError naming the file.
 """
 import contextlib
 import hashlib
 import json
-import math
 import os
 import tempfile
-import warnings
-import zipfile
 
 import numpy as np
 
+from oneshot import npz
 from oneshot.arm import ArmConfig
 from oneshot.palette import PaletteConfig
 from oneshot.world import WorldConfig
@@ -49,10 +48,6 @@ REQUIRED_METADATA = (("split",), ("world", "horizon"), ("world", "image_size"), 
                      ("world", "arm", "max_torque"), ("world", "palette"))
 
 FIX = "re-create it with `python -m oneshot.collect`"
-
-# Deflate compresses at most 1032:1, so a member of c compressed bytes holds at most 1032 c bytes: a
-# bound on what a (damaged) zip directory can make `load` allocate, checked before anything is read.
-MAX_DEFLATE_RATIO = 1032
 
 # key: (dtype, number of dimensions)
 ARRAYS = {
@@ -178,7 +173,7 @@ def atomic_write(path):
 def save(dataset, path):
     """Write `dataset` (validated, arrays and metadata) to `path` (.npz), atomically. Adds the format
     version, the state layout and the checksum to the metadata, and returns it. The file's bytes depend
-    on the dataset only (see write_npz), so the same data is the same file."""
+    on the dataset only (`npz.write`), so the same data is the same file."""
     validate(dataset)
     arrays = {key: dataset[key] for key in ARRAYS}
     metadata = dataset.get("metadata", {})
@@ -186,21 +181,8 @@ def save(dataset, path):
     meta = dict(metadata, format_version=FORMAT_VERSION, state_layout=list(STATE_LAYOUT),
                 checksum=checksum(arrays))
     with atomic_write(path) as f:
-        write_npz(f, {"metadata": np.array(json.dumps(meta, sort_keys=True)), **arrays})
+        npz.write(f, {"metadata": np.array(json.dumps(meta, sort_keys=True)), **arrays})
     return meta
-
-
-def write_npz(file, arrays):
-    """Write `arrays` ({name: array}) to the binary file `file` as a compressed .npz that np.load reads:
-    one deflated .npy per array, in the order given. Each member's date is 1980-01-01 00:00 (zip's
-    first day), written here rather than left to numpy's and zipfile's versions (older ones stamped
-    the clock), so the bytes depend on the arrays only."""
-    with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as z:
-        for name, array in arrays.items():
-            info = zipfile.ZipInfo(name + ".npy", date_time=(1980, 1, 1, 0, 0, 0))
-            info.compress_type = zipfile.ZIP_DEFLATED
-            with z.open(info, "w", force_zip64=True) as member:    # zip64: members may pass 2 GB
-                np.lib.format.write_array(member, np.asanyarray(array), allow_pickle=False)
 
 
 def load(path):
@@ -217,28 +199,15 @@ def load(path):
         raise FileNotFoundError(f"no dataset at {path!r}; create one with `python -m oneshot.collect --out {path}`")
     if os.path.isdir(path):
         raise DatasetError(f"{path!r} is a folder; name the dataset's .npz file")
-    with open(path, "rb") as file, _damaged(path), zipfile.ZipFile(file) as z:
-        members = _members(z)
-        if "metadata" not in members:
-            raise DatasetError(f"{path!r} has no metadata, so it was not written by oneshot; {FIX}")
-        size = os.fstat(file.fileno()).st_size
-        headers = {key: _npy_header(z, info, size) for key, info in members.items()}
-        if headers["metadata"][0].kind != "U" or headers["metadata"][1] != ():
-            raise DatasetError(f"{path!r}: its metadata is not a JSON string; {FIX}")
-        try:
-            meta = json.loads(str(_read_npy(z, members["metadata"])))
-        except json.JSONDecodeError as e:
-            raise DatasetError(f"{path!r} has corrupt metadata ({e}); {FIX}") from e
-        if not isinstance(meta, dict):
-            raise DatasetError(f"{path!r}: its metadata must be a JSON object; got {type(meta).__name__}; {FIX}")
-        version = meta.get("format_version")
-        if version != FORMAT_VERSION:
-            raise DatasetError(f"{path!r} has format version {version}, this oneshot reads version "
-                               f"{FORMAT_VERSION}; {FIX}")
-        shapes = {key: header for key, header in headers.items() if key in ARRAYS}
-        check_layout(shapes, source)
-        check_metadata(meta, shapes, source)
-        data = {key: _read_npy(z, members[key]) for key in ARRAYS}
+    try:
+        with npz.Reader(path) as archive:          # every .npy header checked, no array read yet
+            meta = _read_metadata(path, archive)
+            layout = {key: archive.layout[key] for key in ARRAYS if key in archive.layout}
+            check_layout(layout, source)
+            check_metadata(meta, layout, source)        # all before reading what may be gigabytes
+            data = {key: archive.read(key) for key in ARRAYS}
+    except npz.Damaged as e:
+        raise DatasetError(f"{path!r} is not a readable .npz dataset (truncated or corrupt: {e}); {FIX}") from e
     validate(data, source)
     if checksum(data) != meta.get("checksum"):
         raise DatasetError(f"{path!r} fails its checksum: the arrays were changed or damaged after "
@@ -247,66 +216,22 @@ def load(path):
     return data
 
 
-@contextlib.contextmanager
-def _damaged(path):
-    """Turn any error of the zip and .npy readers inside the block into a DatasetError naming `path`: a
-    flipped bit can raise nearly anything (zlib.error, NotImplementedError, SyntaxError, EOFError, ...).
-    Not MemoryError, nor KeyboardInterrupt (not an Exception): they are not the file's fault."""
+def _read_metadata(path, archive):
+    """The metadata dict of the dataset file at `path` (its open `npz.Reader`), of this format version."""
+    if "metadata" not in archive.layout:
+        raise DatasetError(f"{path!r} has no metadata, so it was not written by oneshot; {FIX}")
+    if archive.layout["metadata"][0].kind != "U" or archive.layout["metadata"][1] != ():
+        raise DatasetError(f"{path!r}: its metadata is not a JSON string; {FIX}")
     try:
-        yield
-    except (DatasetError, MemoryError):
-        raise
-    except Exception as e:
-        detail = " ".join(str(e).split()) or type(e).__name__
-        raise DatasetError(f"{path!r} is not a readable .npz dataset (truncated or corrupt: {detail}); "
-                           f"{FIX}") from e
-
-
-def _members(z):
-    """{key: ZipInfo} of the .npy members of zip `z` that `load` reads: "metadata" and ARRAYS'."""
-    members = {}
-    for info in z.infolist():
-        key = info.filename.removesuffix(".npy")
-        if info.filename.endswith(".npy") and (key == "metadata" or key in ARRAYS):
-            if key in members:
-                raise ValueError(f"it holds {info.filename} twice")
-            members[key] = info
-    return members
-
-
-def _npy_header(z, info, file_bytes):
-    """(dtype, shape) of a .npy member of zip `z`, from its header alone. Raises ValueError unless the
-    array it describes is exactly the member's uncompressed size as the zip records it, and that size
-    fits in the member's share of the file's `file_bytes` (at most MAX_DEFLATE_RATIO times its
-    compressed size)."""
-    if info.compress_type == zipfile.ZIP_DEFLATED:
-        fits = info.compress_size <= file_bytes and info.file_size <= MAX_DEFLATE_RATIO * info.compress_size
-    else:
-        fits = info.compress_type == zipfile.ZIP_STORED and info.file_size == info.compress_size <= file_bytes
-    if not fits:
-        raise ValueError(f"the zip's sizes of {info.filename} ({info.compress_size} bytes, compression "
-                         f"{info.compress_type}, holding {info.file_size}) are impossible in a "
-                         f"{file_bytes}-byte file")
-    with z.open(info) as f, warnings.catch_warnings():
-        warnings.simplefilter("error", UserWarning)      # numpy's warning about a header only Python 2 wrote
-        version = np.lib.format.read_magic(f)
-        read_header = {(1, 0): np.lib.format.read_array_header_1_0,
-                       (2, 0): np.lib.format.read_array_header_2_0}.get(version)
-        if read_header is None:
-            raise ValueError(f"{info.filename} has .npy format version {version}, not 1.0 or 2.0")
-        shape, _, dtype = read_header(f)                 # (the order, C or Fortran, read_array follows)
-        start = f.tell()
-    if dtype.hasobject or min(shape, default=0) < 0 or start + math.prod(shape) * dtype.itemsize != info.file_size:
-        raise ValueError(f"{info.filename}'s header claims a {shape} {dtype} array, which is not the "
-                         f"{info.file_size - start} bytes the member holds")
-    return dtype, shape
-
-
-def _read_npy(z, info):
-    """The array of a .npy member of zip `z` (its header checked by _npy_header). Reading it to its end
-    makes zipfile check its CRC-32."""
-    with z.open(info) as f:
-        return np.lib.format.read_array(f, allow_pickle=False)
+        meta = json.loads(str(archive.read("metadata")))
+    except json.JSONDecodeError as e:
+        raise DatasetError(f"{path!r} has corrupt metadata ({e}); {FIX}") from e
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{path!r}: its metadata must be a JSON object; got {type(meta).__name__}; {FIX}")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise DatasetError(f"{path!r} has format version {meta.get('format_version')}, this oneshot reads "
+                           f"version {FORMAT_VERSION}; {FIX}")
+    return meta
 
 
 def demo(dataset, task, k):

@@ -107,8 +107,8 @@ def main(argv=None):
                                         ("train", "--train", cfg.train_demos, 0))
             tasks = len(palette.split_colours(split, PaletteConfig(mode=cfg.palette)))
             make = (f"make it with `python -m oneshot.collect --out {path} --split {split} --tasks {tasks} "
-                    f"--demos {demos} --seed {seed} --noise {cfg.demo_noise}`" if cfg.palette == "hues" else
-                    f"`python -m oneshot.train --palette {cfg.palette} --{split}-data {path}` collects it")
+                    f"--demos {demos} --seed {seed} --noise {cfg.demo_noise}"
+                    f"{' --palette ' + cfg.palette if cfg.palette != 'hues' else ''}`")
             raise FileNotFoundError(f"no {name} dataset at {path!r} ({flag}); {make}"
                                     f"{'' if name == 'heldout' else ', or skip it with --train ' + repr('')}")
     datasets = {name: data.load(path) for name, path in splits}

@@ -14,6 +14,7 @@ from oneshot import checkpoint, config, data, methods, network, optim
 from oneshot.arm import ArmConfig
 from oneshot.palette import PaletteConfig
 from oneshot.world import WorldConfig
+from test_npz import write_lying
 
 # A tiny MIL run with everything a checkpoint can hold: feature points, a bias transformation, learnt
 # step sizes (Meta-SGD), a moving average, and Adam's state after two steps.
@@ -142,9 +143,10 @@ def test_the_shipped_policy_loads_and_fits_the_held_out_data_but_not_64x64_image
     (dict(horizon=50), "20-step demos", "50-step demos", "--horizon 20"),
     (dict(arm=ArmConfig(max_torque=1.0)), "torques of at most 0.5 N m", "torques of at most 1.0 N m",
      "max_torque 0.5"),
-    (dict(palette=PaletteConfig(mode="grid")), "the 'hues' palette", "the 'grid' palette", "'hues' palette"),
+    (dict(palette=PaletteConfig(mode="grid")), "the 'hues' palette", "the 'grid' palette",
+     "--palette hues (or, to test the policy on other colours, python -m oneshot.evaluate --any-palette)"),
     (dict(palette=PaletteConfig(size=24)), "the 'hues' palette with size 48", "the 'hues' palette with size 24",
-     "checkpoint's palette"),
+     "--palette hues"),
 ])
 def test_check_data_names_both_values_and_the_fix(tmp_path, changes, trained, holds, fix):
     save_tiny(tmp_path / "c.npz")
@@ -184,17 +186,11 @@ def test_an_npy_header_claiming_a_giant_shape_is_refused_before_reading(tmp_path
     save_tiny(path)
     with np.load(path) as f:
         arrays = {k: f[k] for k in f.files}
-    with zipfile.ZipFile(path, "w") as z:
-        for name, a in arrays.items():
-            with z.open(name + ".npy", "w") as member:
-                if name == "params/fc0_w":
-                    np.lib.format.write_array_header_1_0(member, {"descr": "<f4", "fortran_order": False,
-                                                                  "shape": (10 ** 12,)})
-                    member.write(a.tobytes())
-                else:
-                    np.lib.format.write_array(member, a)
-    with pytest.raises(checkpoint.CheckpointError, match=r"giant\.npz.*'params/fc0_w\.npy': its header says "
-                                                         r"float32 \(1000000000000,\)"):
+    write_lying(path, arrays, "params/fc0_w", "<f4", (10 ** 12,))
+    with pytest.raises(checkpoint.CheckpointError, match=r"giant\.npz' is not a readable oneshot checkpoint "
+                                                         r"\(params/fc0_w\.npy's header claims a \(1000000000000,\) "
+                                                         r"float32 array, which is not the 320 bytes the member "
+                                                         r"holds\); re-train it"):
         checkpoint.load(path)
 
 

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from oneshot import benchmark, checkpoint, cli, collect, config, data, demo, evaluate, methods, optim, shards, train
+from oneshot.palette import PaletteConfig
 from oneshot.world import WorldConfig
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -363,6 +364,16 @@ def test_the_demo_acts_in_the_world_the_policy_was_trained_in(trained):
     small["world"] = None                                         # an older checkpoint: its network's size
     small["network"] = dataclasses.replace(small["network"], image_size=8)
     assert checkpoint.world_config(small) == WorldConfig(image_size=8)
+
+
+def test_evaluate_on_another_palette_only_when_asked(capsys, tmp_path, trained):
+    grid = str(tmp_path / "grid_heldout.npz")
+    data.save(collect.collect(2, 2, "heldout", 1, 1, WorldConfig(palette=PaletteConfig(mode="grid")),
+                              progress=False), grid)
+    line, _ = refused(capsys, evaluate.main, [trained, "--heldout", grid, "--train", ""])
+    assert "trained on the 'hues' palette but" in line and "--any-palette" in line
+    results = cli.run(evaluate.main, [trained, "--heldout", grid, "--train", "", "--trials", "1", "--any-palette"])
+    assert results["heldout"]["trials"] == 2                     # a transfer test: it runs
 
 
 @pytest.mark.parametrize("damaged", ["checkpoint", "dataset"])
