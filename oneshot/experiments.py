@@ -279,6 +279,10 @@ def main(argv=None):
         except KeyboardInterrupt:
             sys.exit(f"interrupted; the finished runs are in {os.path.join(out, 'runs.csv')}: "
                      f"run the same command to resume")
+    if len(rows) < len(runs):                  # a summary is of the whole sweep: the notebooks trust it
+        print(f"{len(rows)} of {len(runs)} runs finished ({os.path.join(out, 'runs.csv')}); run the same "
+              f"command again to finish the others: no summary or figure until then")
+        return 1
     summary = summarise(rows, cfg, "python -m oneshot.experiments " + shlex.join(argv))
     write_summary(summary, os.path.join(out, "summary.json"))
     print(f"{len(rows)} of {len(runs)} runs finished: {os.path.join(out, 'runs.csv')}, "
@@ -289,7 +293,7 @@ def main(argv=None):
         plot(summary, os.path.join(out, "fig2.png"), {m: LABELS.get(m, m) for m in METHOD_CONFIGS},
              title=f"Figure 2 ({cfg.name} profile, {len(cfg.seeds)} seed{'s' * (len(cfg.seeds) > 1)})")
         print(f"figure: {os.path.join(out, 'fig2.png')}")
-    return 0 if len(rows) == len(runs) else 1
+    return 0
 
 
 if __name__ == "__main__":

@@ -211,6 +211,25 @@ def test_cli_writes_summary_and_says_when_the_plot_needs_matplotlib(tmp_path, mo
     assert not (tmp_path / "out" / "fig2.png").exists()
 
 
+def test_cli_writes_no_summary_until_every_run_finished(tmp_path, monkeypatch, capsys):
+    """Notebook 04 shows a profile's summary.json as its figure: it is written only for the whole sweep."""
+    monkeypatch.setattr(experiments, "run_one", fake_run)
+    monkeypatch.setattr(experiments, "PLOTS", False)
+    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor",
+                        lambda workers, mp_context: concurrent.futures.ThreadPoolExecutor(workers))
+    argv = ["fig2", "--profile", "tiny", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
+            "--data", str(tmp_path / "data"), "--no-progress"]
+    bad = plan(TINY)[0]
+    (tmp_path / "w" / bad.run_id).mkdir(parents=True)
+    (tmp_path / "w" / bad.run_id / "fail").touch()
+    assert experiments.main(argv) == 1
+    assert f"{len(plan(TINY)) - 1} of {len(plan(TINY))} runs finished" in capsys.readouterr().out
+    assert not (tmp_path / "out" / "summary.json").exists()
+    (tmp_path / "w" / bad.run_id / "fail").unlink()
+    assert experiments.main(argv) == 0
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["runs"] == len(plan(TINY))
+
+
 @pytest.mark.parametrize("argv, message", [
     (["fig2", "--profile", "huge"], "invalid choice: 'huge'"),
     (["fig2", "--workers", "0"], "--workers must be >= 1"),
