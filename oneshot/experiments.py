@@ -6,13 +6,15 @@ colour) with one seed, then scored on the same held-out trials:
 
     python -m oneshot.experiments fig2 --profile quick                    # 2 runs at a time, this machine
     python -m oneshot.experiments fig2 --profile paper --workers 4
+    python -m oneshot.experiments fig2 --profile paper --seeds 0          # one seed's figure first
     python -m oneshot.experiments fig2 --profile paper --local-cluster 4   # Dask, pip install ".[cluster]"
     python -m oneshot.experiments fig2 --profile paper --scheduler tcp://host:8786
 
 It writes `oneshot/results/fig2_<profile>/` (`RESULTS`, shipped with the package, so that notebook 04 and
 `load_results` find it wherever the package is installed): runs.csv (one row per finished run), summary.json (per method
 and size: the mean over seeds, a 95% Wilson interval on the pooled trials, the range over seeds) and
-fig2.png (pip install ".[plots]"). Each run works in `runs/fig2/<run id>/` (profiles share the folder:
+fig2.png (pip install ".[plots]"), only once every run of the profile has finished; `--seeds 0` does
+the runs of seed 0 alone and writes summary_seeds0.json and fig2_seeds0.png. Each run works in `runs/fig2/<run id>/` (profiles share the folder:
 the run id names everything a run depends on, so a run two profiles share is done once). Run the same
 command again to resume: finished runs (rows of runs.csv) are skipped, failed or interrupted ones are
 run again, from their own checkpoints.
@@ -247,6 +249,9 @@ def main(argv=None):
     f.add_argument("--out", default=None, help="results folder (default: oneshot/results/fig2_<profile>)")
     f.add_argument("--work", default=os.path.join("runs", "fig2"), help="runs' work folders (default: runs/fig2)")
     f.add_argument("--data", default="data/fig2", help="datasets folder, given to every run (default: data/fig2)")
+    f.add_argument("--seeds", type=int, nargs="+", default=None, metavar="S",
+                   help="only these of the profile's seeds (default: all of them); their summary and figure "
+                        "are summary_seeds<S>.json and fig2_seeds<S>.png, beside the whole profile's")
     f.add_argument("--no-progress", action="store_true", help="no progress bar")
     where = f.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, help="runs at a time in a process pool (default 2)")
@@ -262,6 +267,15 @@ def main(argv=None):
     if (args.scheduler or args.local_cluster) and distributed is None:
         f.error(f"{'--scheduler' if args.scheduler else '--local-cluster'} needs Dask: pip install \".[cluster]\"")
     cfg = PROFILES[args.profile]
+    part, seeds = "", f"{len(cfg.seeds)} seed{'s' * (len(cfg.seeds) > 1)}"
+    if args.seeds is not None:
+        if set(args.seeds) - set(cfg.seeds) or len(set(args.seeds)) != len(args.seeds):
+            f.error(f"--seeds must be distinct seeds of the {cfg.name} profile, {list(cfg.seeds)}; got {args.seeds}")
+        if set(args.seeds) != set(cfg.seeds):  # a part of the figure: its own file names
+            chosen = sorted(args.seeds)
+            part = "_seeds" + "-".join(map(str, chosen))
+            seeds = f"seed{'s' * (len(chosen) > 1)} {', '.join(map(str, chosen))} of {len(cfg.seeds)}"
+        cfg = dataclasses.replace(cfg, seeds=tuple(sorted(args.seeds)))
     out = args.out or os.path.join(RESULTS, f"fig2_{cfg.name}")
     work = args.work
     runs = plan(cfg)
@@ -284,15 +298,15 @@ def main(argv=None):
               f"command again to finish the others: no summary or figure until then")
         return 1
     summary = summarise(rows, cfg, "python -m oneshot.experiments " + shlex.join(argv))
-    write_summary(summary, os.path.join(out, "summary.json"))
+    write_summary(summary, os.path.join(out, f"summary{part}.json"))
     print(f"{len(rows)} of {len(runs)} runs finished: {os.path.join(out, 'runs.csv')}, "
-          f"{os.path.join(out, 'summary.json')}")
+          f"{os.path.join(out, f'summary{part}.json')}")
     if not PLOTS:
         print('fig2.png not drawn: the plot needs matplotlib (pip install ".[plots]")')
     elif rows:
-        plot(summary, os.path.join(out, "fig2.png"), {m: LABELS.get(m, m) for m in METHOD_CONFIGS},
-             title=f"Figure 2 ({cfg.name} profile, {len(cfg.seeds)} seed{'s' * (len(cfg.seeds) > 1)})")
-        print(f"figure: {os.path.join(out, 'fig2.png')}")
+        plot(summary, os.path.join(out, f"fig2{part}.png"), {m: LABELS.get(m, m) for m in METHOD_CONFIGS},
+             title=f"Figure 2 ({cfg.name} profile, {seeds})")
+        print(f"figure: {os.path.join(out, f'fig2{part}.png')}")
     return 0
 
 

@@ -164,13 +164,18 @@ def sweep(runs, results_dir, work_dir, context, run_fn, executor=None, progress=
     `workers` spawned processes, shut down at the end) as `run_fn(spec, work_dir/<run_id>, context)`
     Each finished run adds its row and runs.csv is rewritten atomically; a
     run that raises is named on stderr (traceback in its folder's error.txt) and left out, so the next
-    sweep runs it again. Rows of runs not in `runs` are kept in the file but not returned.
+    sweep runs it again. Rows of runs not in `runs` are kept in the file but not returned. A sweep with
+    runs to do holds a lock on work_dir (a second one is refused: SweepLocked); one whose runs have all
+    finished only reads runs.csv, so it may summarise while another sweep runs.
     """
     context = {} if context is None else context
     ids = [r.run_id for r in runs]
     if len(set(ids)) != len(ids):
         raise ValueError(f"runs lists {sorted({i for i in ids if ids.count(i) > 1})} more than once")
     csv_path = os.path.join(results_dir, "runs.csv")
+    done = {row_id(row): row for row in read_rows(csv_path)}      # runs.csv is replaced whole: safe to read
+    if all(i in done for i in ids):            # nothing to run: no lock (another sweep may be running)
+        return _finished(done, ids)
     os.makedirs(work_dir, exist_ok=True)
     with open(os.path.join(work_dir, ".sweep.lock"), "w") as lock:
         try:
@@ -215,6 +220,11 @@ def sweep(runs, results_dir, work_dir, context, run_fn, executor=None, progress=
             bar.close()
         if own:
             executor.shutdown()
+    return _finished(done, ids)
+
+
+def _finished(done, ids):
+    """The rows of `done` ({run id: row}) whose ids are in `ids`, in runs.csv's order."""
     return sorted((done[i] for i in ids if i in done), key=row_order)
 
 

@@ -143,6 +143,18 @@ def test_a_second_sweep_on_the_same_work_folder_is_refused(tmp_path):
     assert len(run_sweep(tmp_path)) == len(plan(TINY))          # released: the sweep runs
 
 
+def test_a_finished_sweep_reads_its_rows_while_another_sweep_holds_the_folder(tmp_path):
+    rows = run_sweep(tmp_path)
+    with open(tmp_path / "work" / ".sweep.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        assert run_sweep(tmp_path) == rows                     # nothing to run: no lock needed
+        (tmp_path / "results" / "runs.csv").write_text(
+            "".join((tmp_path / "results" / "runs.csv").read_text().splitlines(True)[:-1]))
+        with pytest.raises(sweeping.SweepLocked):              # one run to do again: the lock is needed
+            run_sweep(tmp_path)
+    assert calls(tmp_path / "work") == len(plan(TINY))
+
+
 def test_thread_and_process_pools_give_the_same_rows(tmp_path):
     threads = run_sweep(tmp_path / "threads")
     processes = sweep(plan(TINY)[:4], tmp_path / "processes" / "results", tmp_path / "processes" / "work",
@@ -230,7 +242,30 @@ def test_cli_writes_no_summary_until_every_run_finished(tmp_path, monkeypatch, c
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["runs"] == len(plan(TINY))
 
 
+def test_cli_seeds_sweeps_part_of_the_profile_into_files_of_its_own(tmp_path, monkeypatch, capsys):
+    """--seeds 0: seed 0's runs only; its summary and figure are named for the seed, and the profile's
+    summary.json (which notebook 04 reads as the whole figure) is not written."""
+    monkeypatch.setattr(experiments, "run_one", fake_run)
+    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor",
+                        lambda workers, mp_context: concurrent.futures.ThreadPoolExecutor(workers))
+    argv = ["fig2", "--profile", "tiny", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
+            "--data", str(tmp_path / "data"), "--no-progress", "--seeds", "1"]
+    assert experiments.main(argv) == 0
+    seed1 = [r for r in plan(TINY) if r.seed == 1]
+    assert 0 < len(seed1) < len(plan(TINY)) and calls(tmp_path / "w") == len(seed1)
+    summary = json.loads((tmp_path / "out" / "summary_seeds1.json").read_text())
+    assert summary["runs"] == len(seed1) and summary["config"]["seeds"] == [1]
+    assert all(point["seeds"] == [1] for points in summary["methods"].values() for point in points)
+    assert not (tmp_path / "out" / "summary.json").exists()
+    assert (tmp_path / "out" / "fig2_seeds1.png").exists() == experiments.PLOTS
+    assert experiments.main(argv[:-2] + ["--seeds", "0", "1"]) == 0              # every seed: the whole figure
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["runs"] == len(plan(TINY))
+    assert calls(tmp_path / "w") == len(plan(TINY))                           # seed 1's runs not redone
+
+
 @pytest.mark.parametrize("argv, message", [
+    (["fig2", "--profile", "tiny", "--seeds", "7"], "--seeds must be distinct seeds of the tiny profile, [0, 1]"),
+    (["fig2", "--profile", "tiny", "--seeds", "0", "0"], "--seeds must be distinct"),
     (["fig2", "--profile", "huge"], "invalid choice: 'huge'"),
     (["fig2", "--workers", "0"], "--workers must be >= 1"),
     (["fig2", "--workers", "2", "--local-cluster", "2"], "not allowed with argument"),
