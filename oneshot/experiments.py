@@ -191,18 +191,19 @@ def run_config(spec, context):
 def run_one(spec, run_dir, context):
     """Train (or resume) one run in run_dir and score it on context["trials"] trials per held-out
     colour (`imitation.one_shot_success`, trial seed 0: the same scenes for every run).
-    Returns {"wall_seconds", "successes", "trials"} (wall_seconds adds up every sitting) and, for the
-    `notes` column, the successes per held-out colour, for MIL the unadapted policy's successes in the
-    same scenes, and for the random policy the torque std it picked."""
+    Returns {"wall_seconds", "successes", "trials"} and, for the `notes` column, the successes per
+    held-out colour, for MIL the unadapted policy's successes in the same scenes, and for the random
+    policy the torque std it picked. wall_seconds: the meta-training time the checkpoint records (every
+    sitting, a killed one too) plus the scoring; for a run begun before checkpoints recorded time, only
+    this sitting's (notes: "wall": "this sitting")."""
     host.tune_malloc()
     host.blas_threads(1)                                   # several runs share the cores
     cfg = run_config(spec, context)
-    clock = os.path.join(run_dir, "wall_seconds.json")
-    spent = json.load(open(clock)) if os.path.exists(clock) else 0.0
     t0 = time.perf_counter()
     resume = os.path.exists(os.path.join(run_dir, "checkpoint.npz"))
     train.train(cfg, run_dir, resume=resume, progress=False)
     ckpt = checkpoint.load(os.path.join(run_dir, "checkpoint.npz"))
+    t_score = time.perf_counter()
     heldout = data.load(context["heldout_data"])
     params = checkpoint.policy_params(ckpt)
     score = lambda adapt: imitation.one_shot_success(methods.conditioner(cfg, params, adapt, context["eval_seed"]),
@@ -213,9 +214,10 @@ def run_one(spec, run_dir, context):
         notes["unadapted_successes"] = score(False)["successes"]     # the same scenes, without eq. (1)
     if cfg.method == "random":
         notes["std"] = round(float(params["std"][0]), 6)
-    spent += time.perf_counter() - t0
-    with data.atomic_write(clock) as f:
-        f.write(json.dumps(spent).encode())
+    if ckpt["seconds"] is None:
+        spent, notes["wall"] = time.perf_counter() - t0, "this sitting"
+    else:
+        spent = ckpt["seconds"] + time.perf_counter() - t_score
     return {"wall_seconds": round(spent, 1), "successes": r["successes"], "trials": r["trials"], **notes}
 
 # --- command line ------------------------------------------------------------------------------------

@@ -183,7 +183,7 @@ def _train(cfg, run_dir, resume, progress, stop_after):
                              f"new run folder")
         params, adam, start, rng, net_cfg = (ckpt["params"], ckpt["adam"], ckpt["iteration"],
                                              ckpt["rng"], ckpt["network"])
-        ema = ckpt["ema"]
+        ema, before = ckpt["ema"], ckpt["seconds"]
         _truncate_log(log_path, start)
         if ckpt["config"].lr != cfg.lr:
             _log_now(log_path, {"iteration": start, "lr": cfg.lr, "lr_before": ckpt["config"].lr,
@@ -194,14 +194,18 @@ def _train(cfg, run_dir, resume, progress, stop_after):
         rng = np.random.default_rng(cfg.seed)
         net_cfg = methods.network_config(cfg, image_size)
         params = methods.init_params(cfg, net_cfg, rng)
-        adam, start = optim.adam_init(params), 0
+        adam, start, before = optim.adam_init(params), 0, 0.0
         ema = dict(params) if cfg.ema else None
         open(log_path, "w").close()
+    # The run's meta-training seconds, every sitting included (unknown if an older checkpoint did not say).
+    t0 = time.perf_counter() - (before or 0.0)
+    seconds = lambda: round(time.perf_counter() - t0, 2)
+    recorded = lambda: None if before is None else seconds()
     if cfg.method == "random":                   # nothing to train by gradient: pick the std, save, done
         params, scores = random_std(cfg, train_set)
         _log_now(log_path, {"iteration": 0, "random_std_success_on_training_colours": scores})
         checkpoint.save(ckpt_path, params, optim.adam_init(params), cfg.iterations, rng, cfg, net_cfg,
-                        world=world)
+                        world=world, seconds=recorded())
         return params
 
     # 3. Meta-training loop: sample tasks, adapt (eq. 1), score (eq. 2), meta-gradient, clip, Adam.
@@ -210,7 +214,6 @@ def _train(cfg, run_dir, resume, progress, stop_after):
     end = cfg.iterations if stop_after is None else min(cfg.iterations, start + stop_after)
     bar = tqdm(range(start, end), initial=start, total=cfg.iterations, desc="meta-training",
                disable=not progress)
-    t0 = time.perf_counter()
     pool = shards.make_pool(cfg.shards if cfg.method == "mil" else 1)
     saved = start if resume else None            # the iteration of the checkpoint on disk, if any
     finished = (params, adam, ema, start, rng.bit_generator.state)   # the state after the last whole iteration
@@ -231,7 +234,7 @@ def _train(cfg, run_dir, resume, progress, stop_after):
                 done = it + 1
                 if done % cfg.log_every == 0:
                     _log(log, {"iteration": done, "meta_loss": float(loss),
-                               "seconds": round(time.perf_counter() - t0, 2)})
+                               "seconds": seconds()})
                     bar.set_postfix(meta_loss=f"{float(loss):.3f}")
                 if cfg.eval_every and done % cfg.eval_every == 0:
                     condition = methods.conditioner(cfg, params if ema is None else ema, seed=done)
@@ -245,14 +248,14 @@ def _train(cfg, run_dir, resume, progress, stop_after):
                     bar.set_postfix(meta_loss=f"{float(loss):.3f}", heldout=f"{r['rate']:.2f}")
                 finished = (params, adam, ema, done, rng.bit_generator.state)   # iteration `done` is whole
                 if done % cfg.checkpoint_every == 0 or done == end:
-                    checkpoint.save(ckpt_path, params, adam, done, rng, cfg, net_cfg, ema, world)
+                    checkpoint.save(ckpt_path, params, adam, done, rng, cfg, net_cfg, ema, world, recorded())
                     saved = done
     except KeyboardInterrupt:
         bar.close()
         params, adam, ema, done, rng_state = finished
         if done != saved:                         # save where it stopped; resume goes on from there
             rng.bit_generator.state = rng_state
-            checkpoint.save(ckpt_path, params, adam, done, rng, cfg, net_cfg, ema, world)
+            checkpoint.save(ckpt_path, params, adam, done, rng, cfg, net_cfg, ema, world, recorded())
         raise Interrupted(f"interrupted at iteration {done}; checkpoint: {ckpt_path} "
                           f"(continue with --resume)") from None
     finally:

@@ -24,7 +24,7 @@ NET = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,), feature_
 WORLD = WorldConfig(image_size=8)
 
 
-def save_tiny(path, cfg=CFG, net_cfg=NET, world=WORLD):
+def save_tiny(path, cfg=CFG, net_cfg=NET, world=WORLD, seconds=None):
     """Save a tiny checkpoint at path; returns what was saved, as `load` returns it (rng: its state)."""
     rng = np.random.default_rng(0)
     params = methods.init_params(cfg, net_cfg, rng)
@@ -33,11 +33,11 @@ def save_tiny(path, cfg=CFG, net_cfg=NET, world=WORLD):
         grads = {k: rng.standard_normal(v.shape).astype(v.dtype) for k, v in params.items()}
         params, adam = optim.adam_step(params, grads, adam)
     ema = {k: (0.5 * v).astype(v.dtype) for k, v in params.items()} if cfg.ema and cfg.method != "random" else None
-    checkpoint.save(path, params, adam, 2, rng, cfg, net_cfg, ema, world=world)
+    checkpoint.save(path, params, adam, 2, rng, cfg, net_cfg, ema, world=world, seconds=seconds)
     return {"params": params, "ema": ema, "adam": adam, "iteration": 2, "rng": rng.bit_generator.state,
             "config": cfg, "network": net_cfg, "world": None if world is None else
             json.loads(json.dumps(world if isinstance(world, dict) else dataclasses.asdict(world))),
-            "state_layout": list(data.STATE_LAYOUT)}
+            "state_layout": list(data.STATE_LAYOUT), "seconds": seconds}
 
 
 def assert_equal(ckpt, saved):
@@ -56,6 +56,7 @@ def assert_equal(ckpt, saved):
     assert ckpt["config"] == saved["config"] and ckpt["network"] == saved["network"]
     assert ckpt["rng"].bit_generator.state == saved["rng"]
     assert ckpt["world"] == saved["world"] and ckpt["state_layout"] == saved["state_layout"]
+    assert ckpt["seconds"] == saved["seconds"]
 
 
 def rewrite(path, edit_meta=None, edit_arrays=None):
@@ -71,9 +72,9 @@ def rewrite(path, edit_meta=None, edit_arrays=None):
 
 
 def old_style(meta):
-    """The metadata as the first checkpoints recorded it (the shipped policy's): no world, state layout or
-    checksum, the network's stride, and no config fields added since."""
-    for key in ("world", "state_layout", "checksum"):
+    """The metadata as the first checkpoints recorded it (the shipped policy's): no world, state layout,
+    seconds or checksum, the network's stride, and no config fields added since."""
+    for key in ("world", "state_layout", "seconds", "checksum"):
         del meta[key]
     for key in checkpoint.ADDED_LATER["config"]:
         del meta["config"][key]
@@ -100,6 +101,9 @@ def test_round_trip_with_the_world_and_a_checksum(tmp_path):
     # the world as a dict (a dataset's metadata["world"]) or as a WorldConfig: the same record
     save_tiny(tmp_path / "dict.npz", world=metadata()["world"])
     assert checkpoint.load(tmp_path / "dict.npz")["world"] == ckpt["world"]
+    # the meta-training time so far (`train` records it at every checkpoint)
+    save_tiny(tmp_path / "timed.npz", seconds=12.5)
+    assert checkpoint.load(tmp_path / "timed.npz")["seconds"] == 12.5 and ckpt["seconds"] is None
 
 
 @pytest.mark.parametrize("method", config.METHODS)
@@ -111,10 +115,10 @@ def test_every_method_round_trips(tmp_path, method):
 
 def test_an_old_style_checkpoint_loads_and_is_checked_by_its_network_image_size(tmp_path):
     path = tmp_path / "old.npz"
-    saved = save_tiny(path)
+    saved = save_tiny(path, seconds=3.0)
     rewrite(path, old_style)
     ckpt = checkpoint.load(path)
-    assert_equal(ckpt, dict(saved, world=None, state_layout=None))
+    assert_equal(ckpt, dict(saved, world=None, state_layout=None, seconds=None))
     checkpoint.check_data(ckpt, metadata(horizon=50, palette=PaletteConfig(mode="grid")), "old.npz", "d.npz")
     with pytest.raises(checkpoint.CheckpointError) as e:
         checkpoint.check_data(ckpt, metadata(image_size=32), "old.npz", "d32.npz")
@@ -239,6 +243,9 @@ def _delete(section, key):
     (_set(None, "iteration", "2"), "meta 'iteration' is '2', not int"),
     (_set(None, "iteration", -1), "meta 'iteration' is -1"),
     (_set(None, "checksum", None), "meta 'checksum' is None, not str"),
+    (_set(None, "seconds", "5"), "meta 'seconds' is '5', not float or int or NoneType"),
+    (_set(None, "seconds", -1.0), "meta 'seconds' is -1.0, not a time >= 0"),
+    (_set(None, "seconds", float("inf")), "meta 'seconds' is inf, not a time >= 0"),
     (_set(None, "notes", "mine"), "unknown key 'notes'"),
     (_set("config", "learning_rate", 0.1), "meta 'config' has an unknown field 'learning_rate'"),
     (_delete("config", "alpha"), "meta 'config' has no field 'alpha'"),

@@ -10,11 +10,12 @@ import os
 import numpy as np
 import pytest
 
-from oneshot import experiments
+from oneshot import experiments, train
 from oneshot import sweep as sweeping
 from oneshot.evaluate import wilson_interval
 from oneshot.experiments import PROFILES, plan, run_context
 from oneshot.sweep import COLUMNS, RunSpec, summarise, sweep
+from test_checkpoint import _set, rewrite
 
 TINY = PROFILES["tiny"]
 HELDOUT_COLOURS = 12
@@ -306,4 +307,24 @@ def test_real_runs_resume_and_give_the_same_rows_in_threads_and_processes(tmp_pa
     again = sweep(runs, tmp_path / "p" / "results", tmp_path / "p" / "work", context, experiments.run_one,
                   progress=False)
     assert again == processes and [os.path.getmtime(c) for c in checkpoints] == stamps
+
+
+def test_a_resumed_run_counts_the_training_time_of_its_killed_sittings(tmp_path):
+    """run_one's wall_seconds: the checkpoint's meta-training seconds (every sitting) plus the scoring;
+    a checkpoint from before that record gives this sitting's time and says so in the notes."""
+    spec = next(r for r in plan(TINY) if r.seed == 0 and r.method == "mil" and r.size == 9)
+    experiments.ensure_data(TINY, tmp_path / "data", workers=1, progress=False)
+    context = run_context(TINY, tmp_path / "data")
+    whole = experiments.run_one(spec, str(tmp_path / "whole"), context)
+    for name, seconds in (("killed", 1000.0), ("older", None)):
+        run = tmp_path / name
+        train.train(experiments.run_config(spec, context), run, progress=False, stop_after=spec.iterations // 2)
+        rewrite(run / "checkpoint.npz", _set(None, "seconds", seconds))    # "killed" after 1000 s of training
+        resumed = experiments.run_one(spec, str(run), context)
+        assert {k: v for k, v in resumed.items() if k not in ("wall_seconds", "wall")} == \
+            {k: v for k, v in whole.items() if k != "wall_seconds"}
+        if seconds is None:
+            assert resumed["wall"] == "this sitting" and resumed["wall_seconds"] < 1000
+        else:
+            assert "wall" not in resumed and 1000 < resumed["wall_seconds"] < 1000 + 10 * whole["wall_seconds"]
 

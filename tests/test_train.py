@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from oneshot import batched, checkpoint, config, data, evaluate, imitation, maml, network, optim, train
+from test_checkpoint import _set, rewrite
 
 
 @pytest.fixture
@@ -52,6 +53,29 @@ def test_resume_gives_the_parameters_of_an_uninterrupted_run(tiny, tmp_path, sha
         train.train(cfg, tmp_path / "whole", progress=False)
     with pytest.raises(ValueError, match=r"different config \(alpha: checkpoint .*, now 0\.01\)"):
         train.train(dataclasses.replace(cfg, alpha=0.01), tmp_path / "whole", resume=True, progress=False)
+
+
+def test_the_checkpoint_and_log_count_meta_training_time_over_every_sitting(tiny, tmp_path, monkeypatch):
+    """A resumed run's seconds go on from the killed sitting's (checkpoint and log); a run whose older
+    checkpoint recorded no time keeps it unknown, not a wrong number. The clock: 1 s per reading,
+    from 0 in each sitting, as a new process's."""
+    def new_sitting():
+        ticks = itertools.count()
+        monkeypatch.setattr(train.time, "perf_counter", lambda: float(next(ticks)))
+    cfg = dataclasses.replace(tiny, iterations=8, checkpoint_every=2, log_every=1)
+    run = tmp_path / "run"
+    new_sitting()
+    train.train(cfg, run, progress=False, stop_after=4)
+    first = checkpoint.load(run / "checkpoint.npz")["seconds"]
+    new_sitting()
+    train.train(cfg, run, resume=True, progress=False, stop_after=2)
+    second = checkpoint.load(run / "checkpoint.npz")["seconds"]
+    logged = [json.loads(x)["seconds"] for x in open(run / "log.jsonl")]
+    assert 0 < first < second and logged == sorted(logged) and logged[3] <= first < logged[4]
+    rewrite(run / "checkpoint.npz", _set(None, "seconds", None))    # as a checkpoint before this record
+    new_sitting()
+    train.train(cfg, run, resume=True, progress=False)
+    assert checkpoint.load(run / "checkpoint.npz")["seconds"] is None
 
 
 def test_nan_stops_training_and_keeps_the_last_good_checkpoint(tiny, tmp_path, monkeypatch):
