@@ -23,11 +23,16 @@ import numpy as np
 from autograd import grad
 from tqdm import tqdm
 
-from oneshot import (batched, cli, collect, data, expert, host, imitation, layers, methods, network, optim,
-                     palette, shards)
-from oneshot.config import INNER_PARAMS, METHODS, PROFILES, inner_only
-from oneshot.evaluate import wilson_interval
-from oneshot.world import ReachWorld, WorldConfig
+from oneshot.data import collection, datasets
+from oneshot.expert import controller
+from oneshot.maml import batched, imitation, optim, shards
+from oneshot.methods import registry
+from oneshot.policy import layers, network
+from oneshot.tools import cli, host
+from oneshot.world import palette
+from oneshot.training.config import INNER_PARAMS, METHODS, PROFILES, inner_only
+from oneshot.training.scoring import wilson_interval
+from oneshot.world.reach import ReachWorld, WorldConfig
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -64,8 +69,8 @@ def bench_setup(profile, image_size, **overrides):
     """(cfg, net_cfg, params, rng) for timing a profile (with overridden fields) on synthetic data."""
     cfg = dataclasses.replace(PROFILES[profile], **overrides)
     rng = np.random.default_rng(0)
-    net_cfg = methods.network_config(cfg, image_size)
-    return cfg, net_cfg, methods.init_params(cfg, net_cfg, rng), rng
+    net_cfg = registry.network_config(cfg, image_size)
+    return cfg, net_cfg, registry.init_params(cfg, net_cfg, rng), rng
 
 
 def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, **overrides):
@@ -81,7 +86,7 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
         for _ in range(iterations + 2):
             a, e = synthetic_demos(rng, B, T, image_size), synthetic_demos(rng, B, T, image_size)
             t = time.perf_counter()
-            methods.meta_gradient(cfg, params, a, e, pool)
+            registry.meta_gradient(cfg, params, a, e, pool)
             times.append(time.perf_counter() - t)
     finally:
         if pool is not None:
@@ -104,10 +109,10 @@ def bench_expert(scenes=500, seed=0):
         world = ReachWorld(WorldConfig(split="train" if i % 4 else "heldout"))
         _, info = world.reset(seed=seed + i)
         t0 = time.perf_counter()
-        result = expert.plan(world.state, info["target_position"], world.config.arm, world.config.horizon)
+        result = controller.plan(world.state, info["target_position"], world.config.arm, world.config.horizon)
         plan_s.append(time.perf_counter() - t0)
         iterations.append(result.iterations)
-        successes += expert.demonstrate(world, seed=seed + i)["success"]
+        successes += controller.demonstrate(world, seed=seed + i)["success"]
     return {"scenes": scenes, "expert_success_rate": successes / scenes,
             "ilqg_solve_s_median": float(np.median(plan_s)), "ilqg_solve_s_p90": float(np.percentile(plan_s, 90)),
             "ilqg_iterations_median": float(np.median(iterations))}
@@ -118,7 +123,7 @@ def bench_collect(demos=1000, workers=None):
     tasks = len(palette.split_colours("train"))
     per_task = -(-demos // tasks)
     t0 = time.perf_counter()
-    d = collect.collect(tasks, per_task, "train", 0, workers, progress=True)
+    d = collection.collect(tasks, per_task, "train", 0, workers, progress=True)
     seconds = time.perf_counter() - t0
     return {"demos": tasks * per_task, "workers": workers or os.cpu_count(), "seconds": round(seconds, 2),
             "demos_per_second": round(tasks * per_task / seconds, 1),
@@ -132,13 +137,13 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
     given="position": the target's position (m / 0.2) is appended to the robot state.
     given="colour":   the target colour's RGB in [0, 1] is appended to every pixel (3 more input
                       channels to the first convolution; MIL's contextual policy gets a demo image there).
-    Trains the policy network (`oneshot.network`) on all demos of `train_data` with Adam, `batch`
+    Trains the policy network (`oneshot.policy.network`) on all demos of `train_data` with Adam, `batch`
     demos per step, then runs it in `trials` new scenes of held-out colours.
     """
     if given not in ("position", "colour"):
         raise ValueError(f"given must be 'position' or 'colour'; got {given!r}")
-    ds = data.load(train_data)
-    world_cfg = data.world_config(ds["metadata"])
+    ds = datasets.load(train_data)
+    world_cfg = datasets.world_config(ds["metadata"])
     max_torque = world_cfg.arm.max_torque
     rgb = palette.palette_rgb(world_cfg.palette).astype(np.float32) / 255     # (colours, 3)
     images, states, actions = imitation.prepare_demos(ds["images"], ds["states"], ds["actions"], max_torque)
@@ -184,12 +189,12 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
 
 def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **overrides):
     """Where the time of one process's part of a meta-gradient goes: the training process's block of
-    frames of every task of the profile's meta-batch (`oneshot.shards`), computed in this process
+    frames of every task of the profile's meta-batch (`oneshot.maml.shards`), computed in this process
     alone (without the exchanges with the other processes) with one BLAS thread, as during training.
 
     The part is computed `iterations` times as it is (median wall time) and, alternately with those,
     `iterations` times under Python's cProfile, which gives the time spent inside each of the network's
-    primitives (`oneshot.layers`, `oneshot.batched`; medians): the matrix products, im2col/col2im and the
+    primitives (`oneshot.policy.layers`, `oneshot.maml.batched`; medians): the matrix products, im2col/col2im and the
     rest of the layer primitives (bias, ReLU, masks, concatenation, eq. (1)). The remainder of the wall
     time is autograd's own Python bookkeeping, its sums of gradients and NumPy's small operations (the
     loss, reshapes). Returns milliseconds per part.

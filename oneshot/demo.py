@@ -23,10 +23,14 @@ import os
 
 import numpy as np
 
-from oneshot import checkpoint, cli, expert, imitation, palette, render, viz
-from oneshot.config import inner_only
-from oneshot.evaluate import wilson_interval
-from oneshot.world import ReachWorld, WorldConfig, closest_object
+from oneshot.expert import controller
+from oneshot.maml import imitation
+from oneshot.tools import cli, viz
+from oneshot.training import checkpoint
+from oneshot.world import palette, render
+from oneshot.training.config import inner_only
+from oneshot.training.scoring import wilson_interval
+from oneshot.world.reach import ReachWorld, WorldConfig, closest_object
 
 PRETRAINED = os.path.join(os.path.dirname(__file__), "pretrained", "mil_default.npz")
 SHOWN_COLOURS = 4           # held-out colours in the film strip, one trial each
@@ -66,7 +70,7 @@ def contrast_trial(adapted, unadapted):
 
 def outcome(trial):
     """"reached", "missed: near miss" (closest to the target over the final fifth, not within reach) or
-    "missed: went to a distractor", as `oneshot.imitation.one_shot_success` counts failures."""
+    "missed: went to a distractor", as `oneshot.maml.imitation.one_shot_success` counts failures."""
     if trial["success"]:
         return "reached"
     closest, _ = closest_object(trial["end_effector"], trial["scene"].positions)
@@ -127,7 +131,7 @@ def main(argv=None):
         args.checkpoint = PRETRAINED
         ckpt = checkpoint.load(PRETRAINED) if os.path.exists(PRETRAINED) else None
     # Demos like the ones the policy was meta-trained on (with the same DART noise, if any).
-    expert_cfg = expert.ExpertConfig(action_noise=ckpt["config"].demo_noise if ckpt else 0.0)
+    expert_cfg = controller.ExpertConfig(action_noise=ckpt["config"].demo_noise if ckpt else 0.0)
 
     # 1. One expert demonstration per held-out colour, in the world the policy was trained in (its image
     # size, horizon, arm and palette; older checkpoints record only the image size).
@@ -136,7 +140,7 @@ def main(argv=None):
     print(f"1. The iLQG expert records ONE demonstration for each of the {len(colours)} held-out colours")
     demos = {}
     for i, colour in enumerate(colours):
-        d = expert.demonstrate(world, seed=args.seed * 1000 + i, options={"target_colour": int(colour)},
+        d = controller.demonstrate(world, seed=args.seed * 1000 + i, options={"target_colour": int(colour)},
                                cfg=expert_cfg)
         demos[int(colour)] = d
     print(f"   expert success: {sum(d['success'] for d in demos.values())}/{len(demos)}")
@@ -162,7 +166,7 @@ def main(argv=None):
         demo = imitation.prepare_demos(d["images"], d["states"], d["actions"], max_torque)
         adapted = imitation.adapt(params, demo, cfg.alpha, cfg.inner_steps, inner_only(cfg))
         for j in range(args.trials):
-            seed = imitation.trial_seed(args.seed, i, j)       # trial scenes, seeded as in `oneshot.evaluate`
+            seed = imitation.trial_seed(args.seed, i, j)       # trial scenes, seeded as in `oneshot.training.scoring`
             trials[i, j] = (imitation.rollout(adapted, world, seed, colour),
                             imitation.rollout(params, world, seed, colour))   # the same scene, unadapted
             wins += trials[i, j][0]["success"]

@@ -8,54 +8,16 @@ the end effector within 0.05 m of the target over the final fifth of the episode
 import argparse
 import dataclasses
 import json
-import math
 import os
-
-from oneshot import checkpoint, cli, data, imitation, maml, methods, palette
-from oneshot.config import METHODS, inner_only
-from oneshot.palette import PaletteConfig
-
-
-def wilson_interval(successes, trials, z=1.96):
-    """95% Wilson score interval (lo, hi) for a success rate."""
-    if trials == 0:
-        return 0.0, 1.0
-    p = successes / trials
-    centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
-    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
-    return max(0.0, centre - half), min(1.0, centre + half)
-
-
-def colour_breakdown(result, trials_per_colour, metadata):
-    """One line of per-colour successes, e.g. "hue 0 deg 10/10; hue 30 deg 8/10; ...", in colour order:
-    which new colours are hard (on the default palette, the hues half-way between the primaries and
-    secondaries; docs/results.md, "Which colours fail")."""
-    cfg = data.world_config(metadata).palette
-    return "; ".join(f"{palette.colour_name(c, cfg)} {round(rate * trials_per_colour)}/{trials_per_colour}"
-                     for c, rate in sorted(result["per_colour"].items()))
-
-
-def adaptation_gain(params, dataset, alpha=0.001, steps=3, pairs=5, only=None):
-    """Does adapting on one demo help on ANOTHER demo of the same colour? (Cheap, and far less noisy
-    than rollouts.) For each task and j < pairs: adapt on demo j, score eq. (2) on demo j + 1.
-
-    Returns {"before": mean loss of the unadapted policy on demo j + 1, "after": the same after
-    adapting on demo j, "pairs": how many (demo, demo) pairs were scored}.
-    """
-    n, k = dataset["images"].shape[:2]
-    pairs = min(pairs, k - 1)
-    if pairs < 1:
-        raise ValueError(f"adaptation_gain needs >= 2 demos per task; the dataset has {k}")
-    world_cfg = data.world_config(dataset["metadata"])
-    demos = imitation.prepare_demos(dataset["images"][:, :pairs + 1], dataset["states"][:, :pairs + 1],
-                                    dataset["actions"][:, :pairs + 1], world_cfg.arm.max_torque)
-    before, after = [], []
-    for i in range(n):
-        for j in range(pairs):
-            adapt_demo, eval_demo = (tuple(a[i, j] for a in demos), tuple(a[i, j + 1] for a in demos))
-            before.append(float(imitation.imitation_loss(params, eval_demo)))
-            after.append(float(imitation.imitation_loss(imitation.adapt(params, adapt_demo, alpha, steps, only), eval_demo)))
-    return {"before": sum(before) / len(before), "after": sum(after) / len(after), "pairs": len(before)}
+from oneshot.data import datasets
+from oneshot.maml import imitation, inner
+from oneshot.methods import registry
+from oneshot.tools import cli
+from oneshot.training import checkpoint
+from oneshot.world import palette
+from oneshot.training.config import METHODS, inner_only
+from oneshot.world.palette import PaletteConfig
+from oneshot.training.scoring import adaptation_gain, colour_breakdown, wilson_interval
 
 
 def main(argv=None):
@@ -97,7 +59,7 @@ def main(argv=None):
     cfg = dataclasses.replace(cfg, **{k: v for k, v in (("alpha", args.alpha), ("inner_steps", args.inner_steps))
                                       if v is not None})
     try:
-        maml.check_step(cfg.alpha, cfg.inner_steps)
+        inner.check_step(cfg.alpha, cfg.inner_steps)
     except ValueError as e:
         p.error(f"{e} (--alpha >= 0, --inner-steps >= 0)")
     # Every dataset is found and checked before the first trial (not the second after the first's).
@@ -111,14 +73,14 @@ def main(argv=None):
                     f"{' --palette ' + cfg.palette if cfg.palette != 'hues' else ''}`")
             raise FileNotFoundError(f"no {name} dataset at {path!r} ({flag}); {make}"
                                     f"{'' if name == 'heldout' else ', or skip it with --train ' + repr('')}")
-    datasets = {name: data.load(path) for name, path in splits}
+    loaded = {name: datasets.load(path) for name, path in splits}
     for name, path in splits:                # images, horizon, state, torques (and palette) as trained on
-        checkpoint.check_data(ckpt, datasets[name]["metadata"], args.checkpoint, path, palette=not args.any_palette)
+        checkpoint.check_data(ckpt, loaded[name]["metadata"], args.checkpoint, path, palette=not args.any_palette)
     only = inner_only(cfg)
     mil = cfg.method == "mil"
     results = {}
-    for name, dataset in datasets.items():
-        condition = methods.conditioner(cfg, params, seed=args.seed)
+    for name, dataset in loaded.items():
+        condition = registry.conditioner(cfg, params, seed=args.seed)
         r = imitation.one_shot_success(condition, dataset, args.trials, args.seed)
         r["ci95"] = lo, hi = wilson_interval(r["successes"], r["trials"])
         print(f"{name} colours: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
@@ -133,7 +95,7 @@ def main(argv=None):
                   f"one demo, {g['after']:.3f} after ({g['pairs']} pairs)")
             results["adaptation_gain"] = g
         if args.unadapted and name == "heldout":
-            u = imitation.one_shot_success(methods.conditioner(cfg, params, adapt=False), dataset, args.trials,
+            u = imitation.one_shot_success(registry.conditioner(cfg, params, adapt=False), dataset, args.trials,
                                            args.seed)
             u["ci95"] = lo, hi = wilson_interval(u["successes"], u["trials"])
             print(f"heldout colours, unadapted policy: success {u['rate']:.3f} ({u['successes']}/{u['trials']}), "
@@ -142,7 +104,7 @@ def main(argv=None):
     if args.json:
         written = {k: dict(v, per_colour={str(c): x for c, x in v["per_colour"].items()})
                    if "per_colour" in v else v for k, v in results.items()}
-        with data.atomic_write(args.json) as f:             # never half a file
+        with datasets.atomic_write(args.json) as f:             # never half a file
             f.write(json.dumps(written, indent=1).encode())
     return results
 

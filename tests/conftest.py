@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from oneshot import collect, data
+from oneshot.data import collection, datasets
 
 
 @pytest.fixture(scope="session")
@@ -10,8 +10,8 @@ def tiny_datasets(tmp_path_factory):
     folder = tmp_path_factory.mktemp("data")
     train = folder / "tiny_train.npz"
     heldout = folder / "tiny_heldout.npz"
-    data.save(collect.collect(3, 3, "train", seed=0, workers=1, progress=False), train)
-    data.save(collect.collect(2, 2, "heldout", seed=1, workers=1, progress=False), heldout)
+    datasets.save(collection.collect(3, 3, "train", seed=0, workers=1, progress=False), train)
+    datasets.save(collection.collect(2, 2, "heldout", seed=1, workers=1, progress=False), heldout)
     return str(train), str(heldout)
 
 

@@ -4,13 +4,13 @@
     mlp_loss, make_mlp, make_demo, make_tasks   a tiny tanh MLP, independent of oneshot/network.py
     naive_conv2d                                'same' convolution as explicit loops over output pixels
     squared_error                               the summed squared error of a network's actions
-    assert_batched_equals_loop                  oneshot.batched == oneshot.maml's per-task loop
+    assert_batched_equals_loop                  oneshot.maml.batched == oneshot.maml.inner's per-task loop
 """
 import autograd.numpy as anp
 import numpy as np
 import pytest
 
-from oneshot import batched, maml
+from oneshot.maml import batched, inner
 
 
 # ----- a tiny model: 2-layer tanh MLP with a summed squared-error loss (stands in for eq. 2) -----
@@ -80,13 +80,13 @@ def _task(demos, b):
 
 
 def assert_batched_equals_loop(params, adapt, evaluate, loss, alpha, steps, **kwargs):
-    """`batched.meta_gradient_batched` on the batched demos equals `maml.meta_gradient` over the
+    """`batched.meta_gradient_batched` on the batched demos equals `inner.meta_gradient` over the
     per-task (adapt, evaluate) pairs: the value (rel 1e-10) and the gradient of every parameter
     (rtol 1e-8, atol 1e-12). loss serves both: per task, and summed over a leading task axis.
     kwargs: first_order, only. Returns ((loop value, loop grads), (batched value, batched grads))."""
     B = len(adapt[0]) if isinstance(adapt, (tuple, list)) else len(adapt)
     tasks = [(_task(adapt, b), _task(evaluate, b)) for b in range(B)]
-    v_loop, g_loop = maml.meta_gradient(params, tasks, loss, alpha, steps, **kwargs)
+    v_loop, g_loop = inner.meta_gradient(params, tasks, loss, alpha, steps, **kwargs)
     v_batched, g_batched = batched.meta_gradient_batched(params, adapt, evaluate, loss, alpha, steps, **kwargs)
     assert v_batched == pytest.approx(v_loop, rel=1e-10)
     assert g_batched.keys() == g_loop.keys() == params.keys()

@@ -1,11 +1,11 @@
-"""The analytic arm model (oneshot.arm) against finite differences and against Pymunk."""
+"""The analytic arm model (oneshot.world.arm) against finite differences and against Pymunk."""
 import dataclasses
 
 import numpy as np
 import pytest
 
-from oneshot import arm
-from oneshot.world import ReachWorld, WorldConfig
+from oneshot.world import arm
+from oneshot.world.reach import ReachWorld, WorldConfig
 
 CFG = arm.ArmConfig()
 

@@ -8,8 +8,11 @@ import numpy as np
 import pytest
 from autograd.test_util import check_grads
 
-from oneshot import baselines, config, imitation, methods, network
-from oneshot.world import ReachWorld, WorldConfig, success_window
+from oneshot.maml import imitation
+from oneshot.methods import baselines, registry
+from oneshot.policy import network
+from oneshot.training import config
+from oneshot.world.reach import ReachWorld, WorldConfig, success_window
 
 NET = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,), feature_points=True)
 B, T = 2, 3
@@ -27,20 +30,20 @@ def _cfg(method, **overrides):
 @pytest.mark.parametrize("method", ["mil", "contextual", "lstm"])
 def test_every_method_has_the_right_shapes_and_finite_difference_gradients(rng, method):
     cfg = _cfg(method, lstm_units=4, inner_steps=1, alpha=0.1, inner_params="conv0")
-    net_cfg = dataclasses.replace(methods.network_config(cfg, 8), channels=(3, 4), hidden=(5,))
-    params = {k: v.astype(np.float64) for k, v in methods.init_params(cfg, net_cfg, rng).items()}
+    net_cfg = dataclasses.replace(registry.network_config(cfg, 8), channels=(3, 4), hidden=(5,))
+    params = {k: v.astype(np.float64) for k, v in registry.init_params(cfg, net_cfg, rng).items()}
     adapt, evaluate = _demos(rng), _demos(rng)
-    loss, grads = methods.meta_gradient(cfg, params, adapt, evaluate)
+    loss, grads = registry.meta_gradient(cfg, params, adapt, evaluate)
     assert np.ndim(loss) == 0 and grads.keys() == params.keys()
     assert all(grads[k].shape == params[k].shape and np.any(grads[k] != 0) for k in ("conv0_w", "out_w"))
     settings = (cfg.alpha, cfg.inner_steps, cfg.first_order, config.inner_only(cfg))
-    objective = {"mil": lambda p: methods.batched.meta_objective_batched(p, adapt, evaluate,
+    objective = {"mil": lambda p: registry.batched.meta_objective_batched(p, adapt, evaluate,
                                                                          imitation.imitation_loss, *settings),
                  "contextual": lambda p: baselines.contextual_loss(p, adapt, evaluate),
                  "lstm": lambda p: baselines.lstm_loss(p, adapt, evaluate)}[method]
     assert float(objective(params)) == pytest.approx(float(loss), rel=1e-12)
     check_grads(objective, modes=["rev"], order=2 if method == "mil" else 1)(params)
-    policy = methods.conditioner(cfg, params)(tuple(a[0] for a in adapt))
+    policy = registry.conditioner(cfg, params)(tuple(a[0] for a in adapt))
     image, state = evaluate[0][0, :1], evaluate[1][0, :1]
     action = policy(image, state, None) if callable(policy) else network.forward(policy, image, state)
     assert np.shape(action) == (1, 2)
@@ -111,6 +114,6 @@ def test_the_random_policy_is_reproducible_and_its_std_is_what_it_draws():
 
 def test_methods_refuse_unknown_names_and_the_random_policy_has_no_gradient():
     with pytest.raises(ValueError, match="method must be one of"):
-        methods.check(_cfg("maml"))
+        registry.check(_cfg("maml"))
     with pytest.raises(ValueError, match="nothing to train"):
-        methods.meta_gradient(_cfg("random"), {}, None, None)
+        registry.meta_gradient(_cfg("random"), {}, None, None)

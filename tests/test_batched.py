@@ -8,7 +8,7 @@ from autograd import grad, value_and_grad
 from autograd.test_util import check_grads
 
 from helpers import make_demo, make_mlp, mlp_loss
-from oneshot.batched import value_and_grads
+from oneshot.maml.batched import value_and_grads
 
 
 # ----- value_and_grads: autograd's value_and_grad for a dict of arrays, one root per array -----

@@ -10,10 +10,14 @@ import zipfile
 import numpy as np
 import pytest
 
-from oneshot import checkpoint, config, data, methods, network, optim
-from oneshot.arm import ArmConfig
-from oneshot.palette import PaletteConfig
-from oneshot.world import WorldConfig
+from oneshot.data import datasets
+from oneshot.maml import optim
+from oneshot.methods import registry
+from oneshot.policy import network
+from oneshot.training import checkpoint, config
+from oneshot.world.arm import ArmConfig
+from oneshot.world.palette import PaletteConfig
+from oneshot.world.reach import WorldConfig
 from test_npz import write_lying
 
 # A tiny MIL run with everything a checkpoint can hold: feature points, a bias transformation, learnt
@@ -27,7 +31,7 @@ WORLD = WorldConfig(image_size=8)
 def save_tiny(path, cfg=CFG, net_cfg=NET, world=WORLD, seconds=None):
     """Save a tiny checkpoint at path; returns what was saved, as `load` returns it (rng: its state)."""
     rng = np.random.default_rng(0)
-    params = methods.init_params(cfg, net_cfg, rng)
+    params = registry.init_params(cfg, net_cfg, rng)
     adam = optim.adam_init(params)
     for _ in range(2):
         grads = {k: rng.standard_normal(v.shape).astype(v.dtype) for k, v in params.items()}
@@ -37,7 +41,7 @@ def save_tiny(path, cfg=CFG, net_cfg=NET, world=WORLD, seconds=None):
     return {"params": params, "ema": ema, "adam": adam, "iteration": 2, "rng": rng.bit_generator.state,
             "config": cfg, "network": net_cfg, "world": None if world is None else
             json.loads(json.dumps(world if isinstance(world, dict) else dataclasses.asdict(world))),
-            "state_layout": list(data.STATE_LAYOUT), "seconds": seconds}
+            "state_layout": list(datasets.STATE_LAYOUT), "seconds": seconds}
 
 
 def assert_equal(ckpt, saved):
@@ -83,7 +87,7 @@ def old_style(meta):
 
 
 def metadata(**changes):
-    """A dataset's metadata as `data.load` returns it (read from JSON), its world WORLD with `changes`."""
+    """A dataset's metadata as `datasets.load` returns it (read from JSON), its world WORLD with `changes`."""
     return json.loads(json.dumps({"world": dataclasses.asdict(dataclasses.replace(WORLD, **changes))}))
 
 
@@ -109,7 +113,7 @@ def test_round_trip_with_the_world_and_a_checksum(tmp_path):
 @pytest.mark.parametrize("method", config.METHODS)
 def test_every_method_round_trips(tmp_path, method):
     cfg = dataclasses.replace(config.TrainConfig(), method=method, lstm_units=3, ema=0.5)
-    saved = save_tiny(tmp_path / "c.npz", cfg, methods.network_config(cfg, 8))
+    saved = save_tiny(tmp_path / "c.npz", cfg, registry.network_config(cfg, 8))
     assert_equal(checkpoint.load(tmp_path / "c.npz"), saved)
 
 
@@ -134,7 +138,7 @@ def test_the_shipped_policy_loads_and_fits_the_held_out_data_but_not_64x64_image
     ckpt = checkpoint.load(PRETRAINED)
     assert ckpt["world"] is None and ckpt["network"].image_size == 32
     if SHIPPED_HELDOUT.exists():
-        checkpoint.check_data(ckpt, data.load(SHIPPED_HELDOUT)["metadata"], PRETRAINED, str(SHIPPED_HELDOUT))
+        checkpoint.check_data(ckpt, datasets.load(SHIPPED_HELDOUT)["metadata"], PRETRAINED, str(SHIPPED_HELDOUT))
     with pytest.raises(checkpoint.CheckpointError, match=r"32x32 images but h64\.npz holds 64x64 images; "
                                                          r"use data collected with --image-size 32"):
         checkpoint.check_data(ckpt, metadata(image_size=64), PRETRAINED, "h64.npz")
@@ -167,13 +171,13 @@ def test_check_data_names_both_values_and_the_fix(tmp_path, changes, trained, ho
 def test_check_data_accepts_matching_data_and_compares_recorded_state_layouts(tmp_path):
     save_tiny(tmp_path / "c.npz")
     ckpt = checkpoint.load(tmp_path / "c.npz")
-    assert ckpt["state_layout"] == list(data.STATE_LAYOUT)
+    assert ckpt["state_layout"] == list(datasets.STATE_LAYOUT)
     assert checkpoint.check_data(ckpt, metadata(split="heldout"), "c.npz", "d.npz") is None
     older = metadata()
     older["world"]["palette"] = {"heldout_every": 4, "min_separation_deg": 60.0, "size": 48}   # older data's record
     checkpoint.check_data(ckpt, older, "c.npz", "d.npz")
-    checkpoint.check_data(ckpt, dict(metadata(), state_layout=list(data.STATE_LAYOUT)), "c.npz", "d.npz")
-    swapped = list(data.STATE_LAYOUT[2:4] + data.STATE_LAYOUT[:2] + data.STATE_LAYOUT[4:])
+    checkpoint.check_data(ckpt, dict(metadata(), state_layout=list(datasets.STATE_LAYOUT)), "c.npz", "d.npz")
+    swapped = list(datasets.STATE_LAYOUT[2:4] + datasets.STATE_LAYOUT[:2] + datasets.STATE_LAYOUT[4:])
     save_tiny(tmp_path / "no_world.npz", world=None)                # the layout is checked without a world too
     for path in ("c.npz", "no_world.npz"):
         with pytest.raises(checkpoint.CheckpointError, match=r"states laid out as \['shoulder angle', .* but d\.npz "
@@ -280,7 +284,7 @@ def test_a_config_claiming_a_giant_network_is_refused_without_building_it(tmp_pa
                                                          r"and method need \(25000000000008, 5\)"):
         checkpoint.load(path)
     cfg = dataclasses.replace(config.TrainConfig(), method="lstm", lstm_units=3)
-    save_tiny(path, cfg, methods.network_config(cfg, 8))
+    save_tiny(path, cfg, registry.network_config(cfg, 8))
     rewrite(path, _set("config", "lstm_units", 10 ** 9))
     with pytest.raises(checkpoint.CheckpointError, match=r"lstm_units 1000000000 but the network's state_dim is "
                                                          r"only 9"):

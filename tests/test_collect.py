@@ -12,8 +12,8 @@ import time
 import numpy as np
 import pytest
 
-from oneshot import collect, data
-from oneshot.world import WorldConfig
+from oneshot.data import collection, datasets
+from oneshot.world.reach import WorldConfig
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 TINY_WORLD = WorldConfig(image_size=8, horizon=8)      # 8 steps: the expert reaches every scene
@@ -29,29 +29,29 @@ def python_m_collect(*argv, **kwargs):
 
 def test_the_same_data_is_the_same_file_whatever_the_workers_and_the_hour(tmp_path):
     start = time.monotonic()
-    one = collect.collect(2, 2, "train", seed=3, workers=1, world_cfg=TINY_WORLD, progress=False)
-    data.save(one, tmp_path / "one.npz")
-    two = collect.collect(2, 2, "train", seed=3, workers=2, world_cfg=TINY_WORLD, progress=False)
+    one = collection.collect(2, 2, "train", seed=3, workers=1, world_cfg=TINY_WORLD, progress=False)
+    datasets.save(one, tmp_path / "one.npz")
+    two = collection.collect(2, 2, "train", seed=3, workers=2, world_cfg=TINY_WORLD, progress=False)
     time.sleep(max(0.0, 2.1 - (time.monotonic() - start)))   # zip dates count in 2 s steps: a later one
-    data.save(two, tmp_path / "two.npz")
-    data.save(one, tmp_path / "again.npz")
+    datasets.save(two, tmp_path / "two.npz")
+    datasets.save(one, tmp_path / "again.npz")
     first = (tmp_path / "one.npz").read_bytes()
     assert (tmp_path / "two.npz").read_bytes() == first and (tmp_path / "again.npz").read_bytes() == first
     assert not {"seconds", "workers"} & set(one["metadata"])
     with np.load(tmp_path / "one.npz") as f:                  # plain numpy reads it, e.g. in a notebook
-        assert sorted(f.files) == sorted([*data.ARRAYS, "metadata"])
+        assert sorted(f.files) == sorted([*datasets.ARRAYS, "metadata"])
         assert np.array_equal(f["images"], one["images"])
-    other = collect.collect(2, 2, "train", seed=4, workers=1, world_cfg=TINY_WORLD, progress=False)
-    data.save(other, tmp_path / "other.npz")
+    other = collection.collect(2, 2, "train", seed=4, workers=1, world_cfg=TINY_WORLD, progress=False)
+    datasets.save(other, tmp_path / "other.npz")
     assert (tmp_path / "other.npz").read_bytes() != first
 
 
 def test_a_horizon_too_short_for_the_expert_is_a_named_error(tmp_path):
     # In 5 steps the expert reaches about a third of the scenes (8 steps: all of them); with seed 0,
     # a demo of task 1 fails all MAX_ATTEMPTS scenes. Through the process pool as well as in-process:
-    with pytest.raises(collect.ExpertFailed, match=r"failed 10 scenes in a row for task 1 .* in 5 steps "
+    with pytest.raises(collection.ExpertFailed, match=r"failed 10 scenes in a row for task 1 .* in 5 steps "
                                                    r"it cannot reach .* use a longer --horizon \(the default is 20\)"):
-        collect.collect(2, 2, "train", seed=0, workers=2, world_cfg=WorldConfig(image_size=8, horizon=5),
+        collection.collect(2, 2, "train", seed=0, workers=2, world_cfg=WorldConfig(image_size=8, horizon=5),
                         progress=False)
     out = tmp_path / "d.npz"
     process = python_m_collect("--out", str(out), "--tasks", "2", "--demos", "2", "--seed", "0", "--workers", "1",

@@ -12,29 +12,31 @@ import zipfile
 import numpy as np
 import pytest
 
-from oneshot import collect, data, palette
-from oneshot.arm import ArmConfig
-from oneshot.palette import PaletteConfig
-from oneshot.world import ReachWorld, WorldConfig, observation_state
+from oneshot.data import collection, datasets
+from oneshot.world import palette
+from oneshot.world.arm import ArmConfig
+from oneshot.world.palette import PaletteConfig
+from oneshot.world.reach import ReachWorld, WorldConfig, observation_state
+from oneshot import collect
 from test_npz import write_lying
 
 
 @pytest.fixture(scope="module")
 def small():
-    return collect.collect(n_tasks=3, demos_per_task=2, split="train", seed=5, workers=1, progress=False)
+    return collection.collect(n_tasks=3, demos_per_task=2, split="train", seed=5, workers=1, progress=False)
 
 
 @pytest.fixture(scope="module")
 def tiny_file(tmp_path_factory):
     """A saved dataset of 4 KB: 2 tasks x 2 demos of 8 steps of 8x8 images."""
     path = tmp_path_factory.mktemp("tiny") / "tiny.npz"
-    data.save(collect.collect(2, 2, "train", seed=7, workers=1, world_cfg=WorldConfig(image_size=8, horizon=8),
+    datasets.save(collection.collect(2, 2, "train", seed=7, workers=1, world_cfg=WorldConfig(image_size=8, horizon=8),
                               progress=False), path)
     return path
 
 
 def test_collected_demos_are_expert_successes_of_their_task(small):
-    data.validate(small)
+    datasets.validate(small)
     meta = small["metadata"]
     assert meta["n_tasks"] == 3 and meta["demos_per_task"] == 2 and meta["dropped"] == 0
     assert set(small["task_colours"].tolist()) <= set(palette.split_colours("train").tolist())
@@ -49,30 +51,30 @@ def test_collected_demos_are_expert_successes_of_their_task(small):
 
 def test_round_trip_is_exact(small, tmp_path):
     path = tmp_path / "d.npz"
-    data.save(small, path)
-    back = data.load(path)
-    for key in data.ARRAYS:
+    datasets.save(small, path)
+    back = datasets.load(path)
+    for key in datasets.ARRAYS:
         assert back[key].dtype == small[key].dtype and np.array_equal(back[key], small[key]), key
-    assert back["metadata"]["format_version"] == data.FORMAT_VERSION
+    assert back["metadata"]["format_version"] == datasets.FORMAT_VERSION
     assert back["metadata"]["seed"] == 5
     assert [p.name for p in tmp_path.iterdir()] == ["d.npz"]     # no temporary file left behind
 
 
 def test_collection_is_seeded_and_independent_of_worker_count(small):
-    again = collect.collect(n_tasks=3, demos_per_task=2, split="train", seed=5, workers=2, progress=False)
-    for key in data.ARRAYS:
+    again = collection.collect(n_tasks=3, demos_per_task=2, split="train", seed=5, workers=2, progress=False)
+    for key in datasets.ARRAYS:
         assert np.array_equal(again[key], small[key]), key
-    other = collect.collect(n_tasks=3, demos_per_task=2, split="train", seed=6, workers=1, progress=False)
+    other = collection.collect(n_tasks=3, demos_per_task=2, split="train", seed=6, workers=1, progress=False)
     assert not np.array_equal(other["positions"], small["positions"])
 
 
 def test_truncated_file_is_rejected(small, tmp_path):
     path = tmp_path / "d.npz"
-    data.save(small, path)
+    datasets.save(small, path)
     raw = path.read_bytes()
     path.write_bytes(raw[: len(raw) // 2])
-    with pytest.raises(data.DatasetError, match="truncated or corrupt"):
-        data.load(path)
+    with pytest.raises(datasets.DatasetError, match="truncated or corrupt"):
+        datasets.load(path)
 
 
 def _rewrite(path, **changes):
@@ -86,50 +88,50 @@ def _rewrite(path, **changes):
 
 def test_changed_arrays_fail_the_checksum(small, tmp_path):
     path = tmp_path / "d.npz"
-    data.save(small, path)
+    datasets.save(small, path)
     actions = small["actions"].copy()
     actions[1, 1, 3, 0] += 0.01
     _rewrite(path, actions=actions)
-    with pytest.raises(data.DatasetError, match="checksum"):
-        data.load(path)
+    with pytest.raises(datasets.DatasetError, match="checksum"):
+        datasets.load(path)
 
 
 def test_wrong_version_missing_key_bad_dtype_and_nan_are_named(small, tmp_path):
     path = tmp_path / "d.npz"
-    data.save(small, path)
+    datasets.save(small, path)
     meta = json.loads(str(np.load(path)["metadata"]))
     _rewrite(path, metadata=np.array(json.dumps(dict(meta, format_version=99))))
-    with pytest.raises(data.DatasetError, match="format version 99"):
-        data.load(path)
+    with pytest.raises(datasets.DatasetError, match="format version 99"):
+        datasets.load(path)
 
-    data.save(small, path)
+    datasets.save(small, path)
     with np.load(path) as f:
         members = {k: f[k] for k in f.files if k != "seeds"}
     with open(path, "wb") as f:
         np.savez_compressed(f, **members)
-    with pytest.raises(data.DatasetError, match="no array 'seeds'"):
-        data.load(path)
+    with pytest.raises(datasets.DatasetError, match="no array 'seeds'"):
+        datasets.load(path)
 
     bad = dict(small, states=small["states"].astype(np.float64))
-    with pytest.raises(data.DatasetError, match="states must be 4-d float32"):
-        data.validate(bad)
+    with pytest.raises(datasets.DatasetError, match="states must be 4-d float32"):
+        datasets.validate(bad)
     bad = dict(small, actions=small["actions"][:, :, :-1])
-    with pytest.raises(data.DatasetError, match=r"actions has shape .* expected"):
-        data.validate(bad)
+    with pytest.raises(datasets.DatasetError, match=r"actions has shape .* expected"):
+        datasets.validate(bad)
     nan = small["actions"].copy()
     nan[0, 0, 0, 0] = np.nan
-    with pytest.raises(data.DatasetError, match="NaN"):
-        data.validate(dict(small, actions=nan))
+    with pytest.raises(datasets.DatasetError, match="NaN"):
+        datasets.validate(dict(small, actions=nan))
     with pytest.raises(FileNotFoundError, match="oneshot.collect"):
-        data.load(tmp_path / "missing.npz")
+        datasets.load(tmp_path / "missing.npz")
     (tmp_path / "text.npz").write_text("not a zip")
-    with pytest.raises(data.DatasetError, match="not a readable"):
-        data.load(tmp_path / "text.npz")
+    with pytest.raises(datasets.DatasetError, match="not a readable"):
+        datasets.load(tmp_path / "text.npz")
 
 
 def test_failed_save_leaves_the_old_file_and_no_debris(small, tmp_path, monkeypatch):
     path = tmp_path / "d.npz"
-    data.save(small, path)
+    datasets.save(small, path)
     before = path.read_bytes()
 
     def explode(*args, **kwargs):
@@ -137,25 +139,25 @@ def test_failed_save_leaves_the_old_file_and_no_debris(small, tmp_path, monkeypa
 
     monkeypatch.setattr(np.lib.format, "write_array", explode)
     with pytest.raises(OSError, match="disk full"):
-        data.save(small, path)
+        datasets.save(small, path)
     assert path.read_bytes() == before
     assert sorted(os.listdir(tmp_path)) == ["d.npz"]
 
 
 def test_bad_arguments_are_rejected():
     with pytest.raises(ValueError, match="has 12 colours"):
-        collect.collect(n_tasks=13, demos_per_task=2, split="heldout", progress=False)
+        collection.collect(n_tasks=13, demos_per_task=2, split="heldout", progress=False)
     with pytest.raises(ValueError, match="at least 2 demos"):
-        collect.collect(n_tasks=2, demos_per_task=1, progress=False)
+        collection.collect(n_tasks=2, demos_per_task=1, progress=False)
     with pytest.raises(ValueError, match="unknown colour split"):
-        collect.collect(n_tasks=2, demos_per_task=2, split="validation", progress=False)
+        collection.collect(n_tasks=2, demos_per_task=2, split="validation", progress=False)
 
 
 def test_command_line_writes_a_loadable_file(tmp_path, capsys):
     out = tmp_path / "cli.npz"
     collect.main(["--out", str(out), "--split", "heldout", "--tasks", "2", "--demos", "2",
                   "--workers", "1", "--seed", "1"])
-    d = data.load(out)
+    d = datasets.load(out)
     assert d["metadata"]["split"] == "heldout"
     assert set(d["task_colours"].tolist()) <= set(palette.split_colours("heldout").tolist())
     assert "expert success" in capsys.readouterr().out
@@ -169,8 +171,8 @@ def test_world_config_rebuilds_the_world_a_dataset_was_collected_in(tiny_dataset
     configs, tuples as tuples), and a world that, reset with a recorded scene seed, shows the recorded
     first frame."""
     for path, split in zip(tiny_datasets, ("train", "heldout")):
-        dataset = data.load(path)
-        cfg = data.world_config(dataset["metadata"])
+        dataset = datasets.load(path)
+        cfg = datasets.world_config(dataset["metadata"])
         assert cfg == dataclasses.replace(WorldConfig(), split=split)
         obs, _ = ReachWorld(cfg).reset(seed=int(dataset["seeds"][1, 0]),
                                        options={"target_colour": int(dataset["task_colours"][1])})
@@ -179,7 +181,7 @@ def test_world_config_rebuilds_the_world_a_dataset_was_collected_in(tiny_dataset
 
 def test_world_config_round_trips_every_field_through_json():
     """Every field of the world and the arm away from its default (a grid palette with its own levels),
-    through the JSON that `data.save` writes: tuples come back as tuples, nested configs as configs."""
+    through the JSON that `datasets.save` writes: tuples come back as tuples, nested configs as configs."""
     cfg = WorldConfig(arm=ArmConfig(l1=0.12, l2=0.09, m1=1.5, m2=0.7, radius=0.02, damping=0.03, max_torque=0.4,
                                     dt=0.04, substeps=7, q0=(0.1, 1.2)),
                       palette=PaletteConfig(mode="grid", size=36, heldout_every=6, min_separation_deg=45.0,
@@ -192,7 +194,7 @@ def test_world_config_round_trips_every_field_through_json():
         assert same == [], f"give {same} a non-default value here, so that their round trip is tested"
     assert cfg.palette != PaletteConfig()
     metadata = json.loads(json.dumps({"world": dataclasses.asdict(cfg)}, sort_keys=True))
-    assert data.world_config(metadata) == cfg
+    assert datasets.world_config(metadata) == cfg
 
 
 def _zip_structure(raw):
@@ -215,7 +217,7 @@ def test_every_single_bit_flip_loads_the_same_data_or_is_named(tiny_file, tmp_pa
     arrays and metadata, or raises DatasetError naming it. Nothing else escapes, and no load allocates
     more than a few MB (a flipped bit in a .npy header can claim a shape of terabytes)."""
     raw = tiny_file.read_bytes()
-    original = data.load(tiny_file)
+    original = datasets.load(tiny_file)
     rng = np.random.default_rng(20)
     anywhere = rng.choice(8 * len(raw), 350, replace=False)
     in_records = rng.choice([8 * i + b for i in _zip_structure(raw) for b in range(8)], 150, replace=False)
@@ -229,14 +231,14 @@ def test_every_single_bit_flip_loads_the_same_data_or_is_named(tiny_file, tmp_pa
             path.write_bytes(bytes(damaged))
             tracemalloc.reset_peak()
             try:
-                back = data.load(path)
-            except data.DatasetError as e:
+                back = datasets.load(path)
+            except datasets.DatasetError as e:
                 assert str(path) in str(e) and "python -m oneshot.collect" in str(e), (bit, str(e))
                 outcomes["named"] += 1
             except Exception as e:
                 pytest.fail(f"flipping bit {bit} (byte {bit // 8}) let {e!r} escape")
             else:
-                for key in data.ARRAYS:
+                for key in datasets.ARRAYS:
                     assert back[key].dtype == original[key].dtype and np.array_equal(back[key], original[key]), bit
                 assert back["metadata"] == original["metadata"], bit
                 outcomes["same"] += 1
@@ -264,12 +266,12 @@ def test_a_header_claiming_a_huge_array_is_a_dataset_error_before_anything_is_al
     claim = f"{key}.npy's header claims a {shape} {np.dtype(descr)} array, which is not the {members[key].nbytes} bytes"
     tracemalloc.start()
     try:
-        with pytest.raises(data.DatasetError, match=re.escape(claim)) as error:
-            data.load(path)
+        with pytest.raises(datasets.DatasetError, match=re.escape(claim)) as error:
+            datasets.load(path)
         assert tracemalloc.get_traced_memory()[1] < 10_000_000
     finally:
         tracemalloc.stop()
-    assert str(error.value).startswith(repr(str(path))) and str(error.value).endswith(data.FIX)
+    assert str(error.value).startswith(repr(str(path))) and str(error.value).endswith(datasets.FIX)
 
 
 def _metadata(path):
@@ -287,7 +289,7 @@ def _metadata(path):
     (lambda m: m["world"].update(colour=3), r"its metadata does not describe a world \(TypeError: .*colour"),
     (lambda m: m["world"]["palette"].update(mode="rainbow"), "does not describe a world .*unknown palette mode"),
     (lambda m: m.update(split="heldout"), "its metadata says split 'heldout', but its world's split is 'train'"),
-    (lambda m: m.update(state_layout=list(reversed(data.STATE_LAYOUT))), "its states are laid out as"),
+    (lambda m: m.update(state_layout=list(reversed(datasets.STATE_LAYOUT))), "its states are laid out as"),
 ])
 def test_metadata_the_package_reads_is_checked_on_loading(tiny_file, tmp_path, change, message):
     """A file whose arrays pass their checksum (the checksum covers the arrays only) but whose metadata
@@ -298,8 +300,8 @@ def test_metadata_the_package_reads_is_checked_on_loading(tiny_file, tmp_path, c
     path = tmp_path / "d.npz"
     path.write_bytes(tiny_file.read_bytes())
     _rewrite(path, metadata=np.array(json.dumps(meta)))
-    with pytest.raises(data.DatasetError, match=message) as error:
-        data.load(path)
+    with pytest.raises(datasets.DatasetError, match=message) as error:
+        datasets.load(path)
     assert str(error.value).startswith(repr(str(path)))
 
 
@@ -307,17 +309,17 @@ def test_metadata_that_is_not_an_object_is_named(tiny_file, tmp_path):
     path = tmp_path / "d.npz"
     path.write_bytes(tiny_file.read_bytes())
     _rewrite(path, metadata=np.array(json.dumps([1, 2])))
-    with pytest.raises(data.DatasetError, match="its metadata must be a JSON object; got list"):
-        data.load(path)
-    with pytest.raises(data.DatasetError, match=r"dataset: its metadata does not describe a world \(KeyError: 'world'"):
-        data.world_config({})                                    # used on its own, too
+    with pytest.raises(datasets.DatasetError, match="its metadata must be a JSON object; got list"):
+        datasets.load(path)
+    with pytest.raises(datasets.DatasetError, match=r"dataset: its metadata does not describe a world \(KeyError: 'world'"):
+        datasets.world_config({})                                    # used on its own, too
 
 
 def test_save_refuses_metadata_that_load_would_refuse(small, tmp_path):
     metadata = dict(small["metadata"])
     del metadata["world"]
-    with pytest.raises(data.DatasetError, match="dataset: its metadata has no world"):
-        data.save(dict(small, metadata=metadata), tmp_path / "d.npz")
+    with pytest.raises(datasets.DatasetError, match="dataset: its metadata has no world"):
+        datasets.save(dict(small, metadata=metadata), tmp_path / "d.npz")
     assert list(tmp_path.iterdir()) == []
 
 
@@ -328,7 +330,7 @@ def test_the_state_layout_is_the_worlds_and_is_saved(small, tmp_path):
     world.reset(seed=0, options={"target_colour": 1})
     for _ in range(3):
         obs, *_ = world.step(np.array([0.3, -0.2]))
-    named = dict(zip(data.STATE_LAYOUT, observation_state(obs)))
+    named = dict(zip(datasets.STATE_LAYOUT, observation_state(obs)))
     q1, q2, qd1, qd2 = world.state
     expected = {"shoulder angle": q1, "elbow angle": q2, "shoulder velocity": qd1, "elbow velocity": qd2,
                 "end effector x": world.joints()[2, 0], "end effector y": world.joints()[2, 1]}
@@ -336,18 +338,18 @@ def test_the_state_layout_is_the_worlds_and_is_saved(small, tmp_path):
     for name in expected:
         assert named[name] == pytest.approx(expected[name], abs=1e-6), name
     assert len({abs(v) for v in named.values()}) == 6                # distinct values: the order is tested
-    data.save(small, tmp_path / "d.npz")
-    assert data.load(tmp_path / "d.npz")["metadata"]["state_layout"] == list(data.STATE_LAYOUT)
+    datasets.save(small, tmp_path / "d.npz")
+    assert datasets.load(tmp_path / "d.npz")["metadata"]["state_layout"] == list(datasets.STATE_LAYOUT)
 
 
 def test_a_file_written_before_the_state_layout_was_recorded_still_loads(small, tmp_path):
     """Files written by earlier versions: np.savez_compressed, "seconds" and "workers" in the metadata,
     no "state_layout". They load as they are (their states have today's layout)."""
     path = tmp_path / "old.npz"
-    arrays = {key: small[key] for key in data.ARRAYS}
-    meta = dict(small["metadata"], seconds=1.5, workers=2, format_version=1, checksum=data.checksum(arrays))
+    arrays = {key: small[key] for key in datasets.ARRAYS}
+    meta = dict(small["metadata"], seconds=1.5, workers=2, format_version=1, checksum=datasets.checksum(arrays))
     np.savez_compressed(path, metadata=np.array(json.dumps(meta, sort_keys=True)), **arrays)
-    back = data.load(path)
+    back = datasets.load(path)
     assert back["metadata"] == json.loads(json.dumps(meta)) and "state_layout" not in back["metadata"]
-    for key in data.ARRAYS:
+    for key in datasets.ARRAYS:
         assert np.array_equal(back[key], small[key]), key

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from autograd import grad
 
-from oneshot import ilqg
+from oneshot.expert import ilqg
 from oneshot.exercises import EXERCISES, check, reference
 from oneshot.exercises.__main__ import main
-from oneshot.network import forward
+from oneshot.policy.network import forward
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks" / "exercises"
 

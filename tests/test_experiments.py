@@ -10,11 +10,12 @@ import os
 import numpy as np
 import pytest
 
-from oneshot import experiments, train
-from oneshot import sweep as sweeping
-from oneshot.evaluate import wilson_interval
-from oneshot.experiments import PROFILES, plan, run_context
-from oneshot.sweep import COLUMNS, RunSpec, summarise, sweep
+from oneshot.experiments import __main__ as command, fig2
+from oneshot.experiments import sweep as sweeping
+from oneshot.training.scoring import wilson_interval
+from oneshot.experiments.fig2 import PROFILES, plan, run_context
+from oneshot.training import run_folder
+from oneshot.experiments.sweep import COLUMNS, RunSpec, summarise, sweep
 from test_checkpoint import _set, rewrite
 
 TINY = PROFILES["tiny"]
@@ -66,13 +67,13 @@ def test_run_spec_names_and_checks():
     assert (spec.size, spec.run_id) == (864, "lstm_c72_d12_s1_i6000")
     assert RunSpec("mil-paper", 3, 4, 0, 2).run_id == "mil-paper_c3_d4_s0_i2"
     with pytest.raises(ValueError, match="methods must be distinct names from"):
-        experiments.SweepConfig(methods=("mil", "maml"))
+        fig2.SweepConfig(methods=("mil", "maml"))
     with pytest.raises(ValueError, match="colours must be an int >= 1"):
         RunSpec("mil", 0, 3, 0, 2)
     with pytest.raises(ValueError, match="distinct products"):
-        experiments.SweepConfig(sizes=((24, 6), (12, 12)))
+        fig2.SweepConfig(sizes=((24, 6), (12, 12)))
     with pytest.raises(ValueError, match="larger than the collected data"):
-        experiments.SweepConfig(sizes=((400, 8),))
+        fig2.SweepConfig(sizes=((400, 8),))
 
 
 def test_sweep_writes_one_row_per_run_with_the_columns(tmp_path):
@@ -203,19 +204,19 @@ def test_summarise_pools_seeds():
 def test_plot_writes_a_png(tmp_path):
     pytest.importorskip("matplotlib")
     rows = run_sweep(tmp_path)
-    sweeping.plot(summarise(rows), tmp_path / "fig2.png", experiments.LABELS)
+    sweeping.plot(summarise(rows), tmp_path / "fig2.png", fig2.LABELS)
     assert (tmp_path / "fig2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not glob.glob(str(tmp_path / ".tmp-*"))               # atomic: no temporary file left
 
 
 def test_cli_writes_summary_and_says_when_the_plot_needs_matplotlib(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(experiments, "run_one", fake_run)      # the default run_fn, in threads
-    monkeypatch.setattr(experiments, "PLOTS", False)
+    monkeypatch.setattr(command, "run_one", fake_run)      # the default run_fn, in threads
+    monkeypatch.setattr(command, "PLOTS", False)
     monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor",
                         lambda workers, mp_context: concurrent.futures.ThreadPoolExecutor(workers))
     argv = ["fig2", "--profile", "tiny", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
             "--data", str(tmp_path / "data"), "--no-progress"]
-    assert experiments.main(argv) == 0
+    assert command.main(argv) == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["runs"] == len(plan(TINY))
     assert summary["command"] == "python -m oneshot.experiments " + " ".join(argv)
@@ -226,8 +227,8 @@ def test_cli_writes_summary_and_says_when_the_plot_needs_matplotlib(tmp_path, mo
 
 def test_cli_writes_no_summary_until_every_run_finished(tmp_path, monkeypatch, capsys):
     """Notebook 04 shows a profile's summary.json as its figure: it is written only for the whole sweep."""
-    monkeypatch.setattr(experiments, "run_one", fake_run)
-    monkeypatch.setattr(experiments, "PLOTS", False)
+    monkeypatch.setattr(command, "run_one", fake_run)
+    monkeypatch.setattr(command, "PLOTS", False)
     monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor",
                         lambda workers, mp_context: concurrent.futures.ThreadPoolExecutor(workers))
     argv = ["fig2", "--profile", "tiny", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
@@ -235,31 +236,31 @@ def test_cli_writes_no_summary_until_every_run_finished(tmp_path, monkeypatch, c
     bad = plan(TINY)[0]
     (tmp_path / "w" / bad.run_id).mkdir(parents=True)
     (tmp_path / "w" / bad.run_id / "fail").touch()
-    assert experiments.main(argv) == 1
+    assert command.main(argv) == 1
     assert f"{len(plan(TINY)) - 1} of {len(plan(TINY))} runs finished" in capsys.readouterr().out
     assert not (tmp_path / "out" / "summary.json").exists()
     (tmp_path / "w" / bad.run_id / "fail").unlink()
-    assert experiments.main(argv) == 0
+    assert command.main(argv) == 0
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["runs"] == len(plan(TINY))
 
 
 def test_cli_seeds_sweeps_part_of_the_profile_into_files_of_its_own(tmp_path, monkeypatch, capsys):
     """--seeds 0: seed 0's runs only; its summary and figure are named for the seed, and the profile's
     summary.json (which notebook 04 reads as the whole figure) is not written."""
-    monkeypatch.setattr(experiments, "run_one", fake_run)
+    monkeypatch.setattr(command, "run_one", fake_run)
     monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor",
                         lambda workers, mp_context: concurrent.futures.ThreadPoolExecutor(workers))
     argv = ["fig2", "--profile", "tiny", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
             "--data", str(tmp_path / "data"), "--no-progress", "--seeds", "1"]
-    assert experiments.main(argv) == 0
+    assert command.main(argv) == 0
     seed1 = [r for r in plan(TINY) if r.seed == 1]
     assert 0 < len(seed1) < len(plan(TINY)) and calls(tmp_path / "w") == len(seed1)
     summary = json.loads((tmp_path / "out" / "summary_seeds1.json").read_text())
     assert summary["runs"] == len(seed1) and summary["config"]["seeds"] == [1]
     assert all(point["seeds"] == [1] for points in summary["methods"].values() for point in points)
     assert not (tmp_path / "out" / "summary.json").exists()
-    assert (tmp_path / "out" / "fig2_seeds1.png").exists() == experiments.PLOTS
-    assert experiments.main(argv[:-2] + ["--seeds", "0", "1"]) == 0              # every seed: the whole figure
+    assert (tmp_path / "out" / "fig2_seeds1.png").exists() == command.PLOTS
+    assert command.main(argv[:-2] + ["--seeds", "0", "1"]) == 0              # every seed: the whole figure
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["runs"] == len(plan(TINY))
     assert calls(tmp_path / "w") == len(plan(TINY))                           # seed 1's runs not redone
 
@@ -275,36 +276,36 @@ def test_cli_seeds_sweeps_part_of_the_profile_into_files_of_its_own(tmp_path, mo
 ])
 def test_cli_argument_errors_are_one_line_and_status_2(argv, message, capsys):
     with pytest.raises(SystemExit) as e:
-        experiments.main(argv)
+        command.main(argv)
     err = capsys.readouterr().err
     assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and message in err
 
 
 def test_cli_names_the_cluster_extra_when_dask_is_missing(monkeypatch, capsys):
-    monkeypatch.setattr(experiments, "distributed", None)
+    monkeypatch.setattr(command, "distributed", None)
     with pytest.raises(SystemExit) as e:
-        experiments.main(["fig2", "--scheduler", "tcp://localhost:8786"])
+        command.main(["fig2", "--scheduler", "tcp://localhost:8786"])
     err = capsys.readouterr().err
     assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and 'pip install ".[cluster]"' in err
 
 
 def test_real_runs_resume_and_give_the_same_rows_in_threads_and_processes(tmp_path):
-    """Two real tiny runs (`experiments.run_one`: train, checkpoint, score on the held-out trials) in a
+    """Two real tiny runs (`fig2.run_one`: train, checkpoint, score on the held-out trials) in a
     thread pool and in the default process pool: the same rows; a second sweep trains nothing again."""
     runs = [r for r in plan(TINY) if r.seed == 0 and r.method in ("mil", "lstm") and r.size == 9]
-    experiments.ensure_data(TINY, tmp_path / "data", workers=1, progress=False)
+    fig2.ensure_data(TINY, tmp_path / "data", workers=1, progress=False)
     context = run_context(TINY, tmp_path / "data")
     with concurrent.futures.ThreadPoolExecutor(2) as ex:
-        threads = sweep(runs, tmp_path / "t" / "results", tmp_path / "t" / "work", context, experiments.run_one,
+        threads = sweep(runs, tmp_path / "t" / "results", tmp_path / "t" / "work", context, fig2.run_one,
                         executor=ex, progress=False)
-    processes = sweep(runs, tmp_path / "p" / "results", tmp_path / "p" / "work", context, experiments.run_one,
+    processes = sweep(runs, tmp_path / "p" / "results", tmp_path / "p" / "work", context, fig2.run_one,
                       progress=False)
     assert len(threads) == 2 and without_time(threads) == without_time(processes)
     assert all(r["trials"] == 2 * TINY.trials for r in threads)              # 2 held-out colours
     checkpoints = sorted(glob.glob(str(tmp_path / "p" / "work" / "*" / "checkpoint.npz")))
     stamps = [os.path.getmtime(c) for c in checkpoints]
     assert len(checkpoints) == 2
-    again = sweep(runs, tmp_path / "p" / "results", tmp_path / "p" / "work", context, experiments.run_one,
+    again = sweep(runs, tmp_path / "p" / "results", tmp_path / "p" / "work", context, fig2.run_one,
                   progress=False)
     assert again == processes and [os.path.getmtime(c) for c in checkpoints] == stamps
 
@@ -313,14 +314,14 @@ def test_a_resumed_run_counts_the_training_time_of_its_killed_sittings(tmp_path)
     """run_one's wall_seconds: the checkpoint's meta-training seconds (every sitting) plus the scoring;
     a checkpoint from before that record gives this sitting's time and says so in the notes."""
     spec = next(r for r in plan(TINY) if r.seed == 0 and r.method == "mil" and r.size == 9)
-    experiments.ensure_data(TINY, tmp_path / "data", workers=1, progress=False)
+    fig2.ensure_data(TINY, tmp_path / "data", workers=1, progress=False)
     context = run_context(TINY, tmp_path / "data")
-    whole = experiments.run_one(spec, str(tmp_path / "whole"), context)
+    whole = fig2.run_one(spec, str(tmp_path / "whole"), context)
     for name, seconds in (("killed", 1000.0), ("older", None)):
         run = tmp_path / name
-        train.train(experiments.run_config(spec, context), run, progress=False, stop_after=spec.iterations // 2)
+        run_folder.train(fig2.run_config(spec, context), run, progress=False, stop_after=spec.iterations // 2)
         rewrite(run / "checkpoint.npz", _set(None, "seconds", seconds))    # "killed" after 1000 s of training
-        resumed = experiments.run_one(spec, str(run), context)
+        resumed = fig2.run_one(spec, str(run), context)
         assert {k: v for k, v in resumed.items() if k not in ("wall_seconds", "wall")} == \
             {k: v for k, v in whole.items() if k != "wall_seconds"}
         if seconds is None:

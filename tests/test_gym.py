@@ -1,4 +1,4 @@
-"""The Gymnasium environment (oneshot.gym) and the world guards it relies on (oneshot.world)."""
+"""The Gymnasium environment (oneshot.world.gym) and the world guards it relies on (oneshot.world.reach)."""
 import subprocess
 import sys
 import warnings
@@ -6,13 +6,13 @@ import warnings
 import numpy as np
 import pytest
 
-from oneshot import arm
-from oneshot.world import ReachWorld, Scene, is_success
+from oneshot.world import arm
+from oneshot.world.reach import ReachWorld, Scene, is_success
 
 gymnasium = pytest.importorskip("gymnasium")    # the optional extra: pip install ".[gym]"
 from gymnasium.utils.env_checker import check_env
 
-from oneshot.gym import ENV_ID, ReachEnv
+from oneshot.world.gym import ENV_ID, ReachEnv
 
 
 def reach_torque(obs, q_goal):
@@ -148,7 +148,7 @@ def test_bad_arguments_are_rejected_with_a_message_naming_the_fix():
 
 
 def test_without_gymnasium_the_import_error_says_how_to_install_it():
-    code = "import sys; sys.modules['gymnasium'] = None; import oneshot.gym"
+    code = "import sys; sys.modules['gymnasium'] = None; import oneshot.world.gym"
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode != 0
-    assert 'ImportError: oneshot.gym needs Gymnasium; install the extra: pip install ".[gym]"' in result.stderr
+    assert 'ImportError: oneshot.world.gym needs Gymnasium; install the extra: pip install ".[gym]"' in result.stderr

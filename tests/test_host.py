@@ -5,13 +5,13 @@ import os
 
 import pytest
 
-from oneshot import host
+from oneshot.tools import host
 
 
 def test_blas_threads_returns_the_previous_count_and_really_sets_it():
     before = host.blas_threads(1)
     if before is None:
-        pytest.skip("NumPy's BLAS is not an OpenBLAS that oneshot.host can reach")
+        pytest.skip("NumPy's BLAS is not an OpenBLAS that oneshot.tools.host can reach")
     # Set a count other than the one found, so that reading it back shows the call changed something.
     other = 1 if before != 1 else 2
     if other > (os.cpu_count() or 1):

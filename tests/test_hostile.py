@@ -15,9 +15,15 @@ import time
 import numpy as np
 import pytest
 
-from oneshot import benchmark, checkpoint, cli, collect, config, data, demo, evaluate, methods, optim, shards, train
-from oneshot.palette import PaletteConfig
-from oneshot.world import WorldConfig
+from oneshot import benchmark, demo
+from oneshot.data import collection, datasets
+from oneshot.maml import optim, shards
+from oneshot.methods import registry
+from oneshot.tools import cli
+from oneshot.training import checkpoint, config, run_folder
+from oneshot.world.palette import PaletteConfig
+from oneshot.world.reach import WorldConfig
+from oneshot import collect, evaluate, train
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 HUGE = "1000000000000"
@@ -51,8 +57,8 @@ def tiny_checkpoint(tmp_path_factory):
     """An untrained checkpoint of the tiny profile (no training: the commands must refuse before using it)."""
     path = tmp_path_factory.mktemp("ckpt") / "checkpoint.npz"
     cfg, rng = config.PROFILES["tiny"], np.random.default_rng(0)
-    net_cfg = methods.network_config(cfg, 8)
-    params = methods.init_params(cfg, net_cfg, rng)
+    net_cfg = registry.network_config(cfg, 8)
+    params = registry.init_params(cfg, net_cfg, rng)
     checkpoint.save(path, params, optim.adam_init(params), 0, rng, cfg, net_cfg)
     return str(path)
 
@@ -129,7 +135,7 @@ def test_evaluate_names_a_missing_dataset_and_the_command_that_makes_it(capsys, 
 
 def test_evaluate_finds_a_missing_training_set_before_the_held_out_trials(capsys, tmp_path, tiny_checkpoint):
     heldout = tmp_path / "heldout.npz"
-    data.save(collect.collect(2, 2, "heldout", 1, 1, WorldConfig(image_size=8, horizon=10), progress=False), heldout)
+    datasets.save(collection.collect(2, 2, "heldout", 1, 1, WorldConfig(image_size=8, horizon=10), progress=False), heldout)
     line, out = refused(capsys, evaluate.main, [tiny_checkpoint, "--heldout", str(heldout),
                                                 "--train", str(tmp_path / "train.npz")])
     assert "no train dataset" in line and "--split train" in line and "--train ''" in line
@@ -182,27 +188,27 @@ def tiny_cfg(tiny_datasets):
 
 def _interrupt_at(monkeypatch, call):
     """Make the `call`-th meta-gradient (1-based) raise KeyboardInterrupt, as Ctrl-C in the middle of it."""
-    real, calls = methods.meta_gradient, []
+    real, calls = registry.meta_gradient, []
 
     def meta_gradient(*args):
         calls.append(1)
         if len(calls) == call:
             raise KeyboardInterrupt
         return real(*args)
-    monkeypatch.setattr(methods, "meta_gradient", meta_gradient)
+    monkeypatch.setattr(registry, "meta_gradient", meta_gradient)
 
 
 @pytest.mark.parametrize("extras", [{}, {"ema": 0.5, "eval_every": 3, "eval_trials": 1}])
 def test_ctrl_c_saves_the_last_finished_iteration_and_resume_continues_exactly(tmp_path, tiny_cfg, monkeypatch, extras):
     tiny_cfg = dataclasses.replace(tiny_cfg, **extras)          # with a moving average and held-out checks too
-    whole = train.train(tiny_cfg, tmp_path / "whole", progress=False)
+    whole = run_folder.train(tiny_cfg, tmp_path / "whole", progress=False)
     _interrupt_at(monkeypatch, 4)
-    with pytest.raises(train.Interrupted, match=r"interrupted at iteration 3; checkpoint: .*checkpoint.npz "
+    with pytest.raises(run_folder.Interrupted, match=r"interrupted at iteration 3; checkpoint: .*checkpoint.npz "
                                                 r"\(continue with --resume\)"):
-        train.train(tiny_cfg, tmp_path / "stopped", progress=False)
+        run_folder.train(tiny_cfg, tmp_path / "stopped", progress=False)
     assert checkpoint.load(tmp_path / "stopped" / "checkpoint.npz")["iteration"] == 3
     monkeypatch.undo()
-    resumed = train.train(tiny_cfg, tmp_path / "stopped", resume=True, progress=False)
+    resumed = run_folder.train(tiny_cfg, tmp_path / "stopped", resume=True, progress=False)
     assert all(np.array_equal(resumed[k], whole[k]) for k in whole)
     ends = [checkpoint.load(tmp_path / run / "checkpoint.npz") for run in ("whole", "stopped")]
     assert (ends[0]["ema"] is None) == (not extras)
@@ -240,14 +246,14 @@ def test_a_signalled_training_saves_says_where_in_one_line_and_exits_130(tmp_pat
 
 def test_a_second_training_in_the_same_folder_is_refused(tmp_path, tiny_cfg):
     run = tmp_path / "run"
-    with train.lock_run(str(run)):                        # as a training process holds it
+    with run_folder.lock_run(str(run)):                        # as a training process holds it
         done = subprocess.run([sys.executable, "-m", "oneshot.train", "--profile", "tiny", "--run", str(run),
                                "--train-data", tiny_cfg.train_data, "--heldout-data", tiny_cfg.heldout_data],
                               capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
     assert done.returncode == 1 and done.stderr == (f"error: another process (pid {os.getpid()}) is training in "
                                                     f"{str(run)!r}; wait for it to end, or use another --run folder\n")
     assert [p.name for p in run.iterdir()] == [".lock"]   # nothing else was written, and the folder kept
-    train.train(tiny_cfg, run, progress=False)            # free again once the owner is gone
+    run_folder.train(tiny_cfg, run, progress=False)            # free again once the owner is gone
 
 
 def test_a_run_folder_that_is_a_file_is_refused(capsys, tmp_path, tiny_cfg):
@@ -259,33 +265,33 @@ def test_a_run_folder_that_is_a_file_is_refused(capsys, tmp_path, tiny_cfg):
 
 def test_resume_removes_what_a_killed_checkpoint_write_left(tmp_path, tiny_cfg):
     run = tmp_path / "run"
-    train.train(dataclasses.replace(tiny_cfg, iterations=2), run, progress=False)
+    run_folder.train(dataclasses.replace(tiny_cfg, iterations=2), run, progress=False)
     (run / ".tmp-kill9.npz").write_bytes(b"half a checkpoint")
-    train.train(tiny_cfg, run, resume=True, progress=False)
+    run_folder.train(tiny_cfg, run, resume=True, progress=False)
     assert not (run / ".tmp-kill9.npz").exists()
 
 
 def test_a_run_that_fails_before_starting_leaves_no_folder(tmp_path, tiny_cfg):
     broken = tmp_path / "broken.npz"
     broken.write_bytes(b"not a dataset")
-    with pytest.raises(data.DatasetError):
-        train.train(dataclasses.replace(tiny_cfg, train_data=str(broken)), tmp_path / "run", progress=False)
+    with pytest.raises(datasets.DatasetError):
+        run_folder.train(dataclasses.replace(tiny_cfg, train_data=str(broken)), tmp_path / "run", progress=False)
     assert [p.name for p in tmp_path.iterdir()] == ["broken.npz"]
 
 
 def test_divergence_names_the_checkpoint_only_if_there_is_one(tmp_path, tiny_cfg, monkeypatch):
-    real = methods.meta_gradient
-    monkeypatch.setattr(methods, "meta_gradient", lambda *a: (np.nan, real(*a)[1]))
-    with pytest.raises(train.TrainingDiverged, match="at iteration 1; no checkpoint was saved before it"):
-        train.train(tiny_cfg, tmp_path / "run", progress=False)
+    real = registry.meta_gradient
+    monkeypatch.setattr(registry, "meta_gradient", lambda *a: (np.nan, real(*a)[1]))
+    with pytest.raises(run_folder.TrainingDiverged, match="at iteration 1; no checkpoint was saved before it"):
+        run_folder.train(tiny_cfg, tmp_path / "run", progress=False)
     assert not (tmp_path / "run" / "checkpoint.npz").exists()
     monkeypatch.undo()
-    train.train(dataclasses.replace(tiny_cfg, iterations=2), tmp_path / "run2", progress=False)
-    monkeypatch.setattr(methods, "meta_gradient", lambda *a: (np.nan, real(*a)[1]))
+    run_folder.train(dataclasses.replace(tiny_cfg, iterations=2), tmp_path / "run2", progress=False)
+    monkeypatch.setattr(registry, "meta_gradient", lambda *a: (np.nan, real(*a)[1]))
     path = tmp_path / "run2" / "checkpoint.npz"
-    with pytest.raises(train.TrainingDiverged, match=f"the last good checkpoint \\({path}, iteration 2\\) is "
+    with pytest.raises(run_folder.TrainingDiverged, match=f"the last good checkpoint \\({path}, iteration 2\\) is "
                                                      f"kept: --resume with a smaller --lr"):
-        train.train(tiny_cfg, tmp_path / "run2", resume=True, progress=False)
+        run_folder.train(tiny_cfg, tmp_path / "run2", resume=True, progress=False)
 
 
 def test_a_bare_resume_keeps_the_runs_own_length_and_step(capsys, tmp_path, tiny_cfg):
@@ -294,7 +300,7 @@ def test_a_bare_resume_keeps_the_runs_own_length_and_step(capsys, tmp_path, tiny
     run = str(tmp_path / "run")
     given = ["--profile", "tiny", "--run", run, "--train-data", tiny_cfg.train_data, "--heldout-data",
              tiny_cfg.heldout_data]
-    train.train(dataclasses.replace(tiny_cfg, lr=1e-4, iterations=2, checkpoint_every=1), run, progress=False,
+    run_folder.train(dataclasses.replace(tiny_cfg, lr=1e-4, iterations=2, checkpoint_every=1), run, progress=False,
                 stop_after=1)
     train.main(given + ["--resume"])
     kept = checkpoint.load(os.path.join(run, "checkpoint.npz"))
@@ -304,13 +310,13 @@ def test_a_bare_resume_keeps_the_runs_own_length_and_step(capsys, tmp_path, tiny
 
 def test_resume_may_lower_the_learning_rate_and_logs_it(tmp_path, tiny_cfg):
     run = tmp_path / "run"
-    train.train(dataclasses.replace(tiny_cfg, iterations=2), run, progress=False)
-    train.train(dataclasses.replace(tiny_cfg, lr=tiny_cfg.lr / 10), run, resume=True, progress=False)
+    run_folder.train(dataclasses.replace(tiny_cfg, iterations=2), run, progress=False)
+    run_folder.train(dataclasses.replace(tiny_cfg, lr=tiny_cfg.lr / 10), run, resume=True, progress=False)
     assert checkpoint.load(run / "checkpoint.npz")["config"].lr == tiny_cfg.lr / 10
     assert {"iteration": 2, "lr": tiny_cfg.lr / 10, "lr_before": tiny_cfg.lr, "step_now": tiny_cfg.lr / 10} in [
         json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
     with pytest.raises(ValueError, match="seed: checkpoint 0, now 1"):
-        train.train(dataclasses.replace(tiny_cfg, seed=1), run, resume=True, progress=False)
+        run_folder.train(dataclasses.replace(tiny_cfg, seed=1), run, resume=True, progress=False)
 
 
 # --- 3, 5, 6. files that do not fit, are damaged, or hold a diverged policy -------------------------------
@@ -321,7 +327,7 @@ def trained(tmp_path_factory, tiny_datasets):
     run = tmp_path_factory.mktemp("trained")
     cfg = dataclasses.replace(config.PROFILES["tiny"], train_data=tiny_datasets[0], heldout_data=tiny_datasets[1],
                               iterations=1)
-    train.train(cfg, run, progress=False)
+    run_folder.train(cfg, run, progress=False)
     return str(run / "checkpoint.npz")
 
 
@@ -329,7 +335,7 @@ def trained(tmp_path_factory, tiny_datasets):
 def heldout_16(tmp_path_factory):
     """Held-out demos of 16x16 images: not what any checkpoint here was trained on."""
     path = tmp_path_factory.mktemp("h16") / "heldout16.npz"
-    data.save(collect.collect(2, 2, "heldout", 1, 1, WorldConfig(image_size=16, horizon=8), progress=False), path)
+    datasets.save(collection.collect(2, 2, "heldout", 1, 1, WorldConfig(image_size=16, horizon=8), progress=False), path)
     return str(path)
 
 
@@ -344,18 +350,18 @@ def test_the_shipped_policy_refuses_64x64_data(capsys, tmp_path):
     """The issue's case: the shipped 32x32 policy on 64x64 held-out data reported 4/12 instead of 9/12."""
     shipped = str(ROOT / "oneshot" / "pretrained" / "mil_default.npz")
     heldout = str(tmp_path / "heldout64.npz")
-    data.save(collect.collect(2, 2, "heldout", 1, 1, WorldConfig(image_size=64, horizon=8), progress=False), heldout)
+    datasets.save(collection.collect(2, 2, "heldout", 1, 1, WorldConfig(image_size=64, horizon=8), progress=False), heldout)
     line, _ = refused(capsys, evaluate.main, [shipped, "--heldout", heldout, "--train", ""])
     assert "trained on 32x32 images" in line and "holds 64x64 images" in line
 
 
 def test_resume_refuses_a_training_set_replaced_by_another_image_size(tmp_path, tiny_cfg):
     run = tmp_path / "run"
-    train.train(dataclasses.replace(tiny_cfg, iterations=1), run, progress=False)
+    run_folder.train(dataclasses.replace(tiny_cfg, iterations=1), run, progress=False)
     other = tmp_path / "train16.npz"
-    data.save(collect.collect(3, 3, "train", 0, 1, WorldConfig(image_size=16, horizon=8), progress=False), other)
+    datasets.save(collection.collect(3, 3, "train", 0, 1, WorldConfig(image_size=16, horizon=8), progress=False), other)
     with pytest.raises(checkpoint.CheckpointError, match="trained on 32x32 images but .*train16.npz holds 16x16"):
-        train.train(dataclasses.replace(tiny_cfg, train_data=str(other)), run, resume=True, progress=False)
+        run_folder.train(dataclasses.replace(tiny_cfg, train_data=str(other)), run, resume=True, progress=False)
 
 
 def test_the_demo_acts_in_the_world_the_policy_was_trained_in(trained):
@@ -368,7 +374,7 @@ def test_the_demo_acts_in_the_world_the_policy_was_trained_in(trained):
 
 def test_evaluate_on_another_palette_only_when_asked(capsys, tmp_path, trained):
     grid = str(tmp_path / "grid_heldout.npz")
-    data.save(collect.collect(2, 2, "heldout", 1, 1, WorldConfig(palette=PaletteConfig(mode="grid")),
+    datasets.save(collection.collect(2, 2, "heldout", 1, 1, WorldConfig(palette=PaletteConfig(mode="grid")),
                               progress=False), grid)
     line, _ = refused(capsys, evaluate.main, [trained, "--heldout", grid, "--train", ""])
     assert "trained on the 'hues' palette but" in line and "--any-palette" in line
@@ -462,15 +468,15 @@ def test_benchmark_refuses_empty_runs_and_unknown_profiles(capsys, argv, expecte
 # --- how errors end ----------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("error, status", [(ValueError("bad value; do this"), 2),
-                                           (data.DatasetError("damaged; re-create it"), 2),
+                                           (datasets.DatasetError("damaged; re-create it"), 2),
                                            (FileExistsError("already holds a run; use --resume"), 2),
-                                           (train.TrainingDiverged("the meta-loss became nan"), 1),
+                                           (run_folder.TrainingDiverged("the meta-loss became nan"), 1),
                                            (OSError(28, "No space left on device"), 1),
                                            (KeyboardInterrupt(), 130)])
 def test_run_turns_each_kind_of_error_into_one_line_and_its_status(capsys, error, status):
     def main(argv):
         raise error
-    line, _ = refused(capsys, main, [], status, failures=(train.TrainingDiverged, shards.ShardError))
+    line, _ = refused(capsys, main, [], status, failures=(run_folder.TrainingDiverged, shards.ShardError))
     assert line == "error: " + (str(error) or "interrupted")
 
 

@@ -1,11 +1,12 @@
-"""iLQG (oneshot.ilqg) against an exact reference, and the expert (oneshot.expert) against the
+"""iLQG (oneshot.expert.ilqg) against an exact reference, and the expert (oneshot.expert.controller) against the
 paper's success criterion."""
 import dataclasses
 
 import numpy as np
 
-from oneshot import arm, expert, ilqg
-from oneshot.world import ReachWorld, WorldConfig, observation_state
+from oneshot.expert import controller, ilqg
+from oneshot.world import arm
+from oneshot.world.reach import ReachWorld, WorldConfig, observation_state
 
 
 class Linear:
@@ -62,7 +63,7 @@ def test_ilqg_solves_a_linear_quadratic_problem_exactly():
 def test_ilqg_on_the_arm_descends_and_converges():
     world = ReachWorld()
     _, info = world.reset(seed=7)
-    result = expert.plan(world.state, info["target_position"], world.config.arm, world.config.horizon)
+    result = controller.plan(world.state, info["target_position"], world.config.arm, world.config.horizon)
     history = np.array(result.cost_history)
     assert result.converged
     assert np.all(np.diff(history) <= 0)                     # every accepted step lowers the cost
@@ -73,16 +74,16 @@ def test_ilqg_on_the_arm_descends_and_converges():
 
 def test_the_plan_drives_the_arm_through_the_torque_squashing():
     """The plan's controls v are unbounded; the arm gets u_max tanh(v / u_max) (written out here, not
-    taken from oneshot.expert). Its planned states are the analytic arm driven by those torques; in this
+    taken from oneshot.expert.controller). Its planned states are the analytic arm driven by those torques; in this
     scene the plan asks for more than the bound, where the squashing really changes the torque; and the
     expert's first command in Pymunk (the state is the plan's start, so no feedback) is the squashed
     first control."""
     world = ReachWorld()
     _, info = world.reset(seed=7)
     x0, lim = world.state.copy(), world.config.arm.max_torque
-    result = expert.plan(x0, info["target_position"], world.config.arm, world.config.horizon)
+    result = controller.plan(x0, info["target_position"], world.config.arm, world.config.horizon)
     torque = lim * np.tanh(result.u / lim)                                   # (T, 2) N m
-    model = dataclasses.replace(world.config.arm, substeps=expert.ExpertConfig().model_substeps)
+    model = dataclasses.replace(world.config.arm, substeps=controller.ExpertConfig().model_substeps)
     x = [x0]
     for u in torque:
         x.append(arm.step(x[-1], u, model))
@@ -94,7 +95,7 @@ def test_the_plan_drives_the_arm_through_the_torque_squashing():
     for u in result.u:                                                       # not the planned states
         x.append(arm.step(x[-1], u, model))
     assert np.abs(np.array(x) - result.x).max() > 0.1
-    demo = expert.demonstrate(world, seed=7)
+    demo = controller.demonstrate(world, seed=7)
     np.testing.assert_allclose(demo["actions"][0], torque[0].astype(np.float32), rtol=1e-6)
     assert np.abs(demo["actions"]).max() <= lim and np.abs(demo["actions"]).max() > 0.5 * lim
 
@@ -106,7 +107,7 @@ def test_expert_meets_the_success_criterion_on_a_sample_of_scenes():
     for split, seeds in (("train", range(30)), ("heldout", range(100, 110))):
         world = ReachWorld(WorldConfig(split=split))
         for seed in seeds:
-            demo = expert.demonstrate(world, seed=seed)
+            demo = controller.demonstrate(world, seed=seed)
             assert demo["success"], (split, seed)
             assert np.abs(demo["actions"]).max() <= world.config.arm.max_torque
 
@@ -114,7 +115,7 @@ def test_expert_meets_the_success_criterion_on_a_sample_of_scenes():
 def test_a_demonstration_is_what_the_simulator_did():
     """Replaying the recorded torques open loop in Pymunk reproduces the recorded frames exactly."""
     world = ReachWorld()
-    demo = expert.demonstrate(world, seed=11)
+    demo = controller.demonstrate(world, seed=11)
     obs, _ = world.reset(seed=11)
     for t, u in enumerate(demo["actions"]):
         assert np.array_equal(obs["image"], demo["images"][t])
@@ -127,9 +128,9 @@ def test_dart_noise_is_executed_but_not_recorded_and_the_expert_still_succeeds()
     """With action noise the labels are the expert's commands; replaying the *applied* torques
     reproduces the recorded frames, and the commands differ from them by the noise."""
     world = ReachWorld()
-    cfg = expert.ExpertConfig(action_noise=0.1)
+    cfg = controller.ExpertConfig(action_noise=0.1)
     for seed in range(5):
-        demo = expert.demonstrate(world, seed=seed, cfg=cfg)
+        demo = controller.demonstrate(world, seed=seed, cfg=cfg)
         assert demo["success"]
         gap = np.abs(demo["applied"] - demo["actions"])
         assert 0.03 < gap.mean() < 0.15                           # about the noise's mean |N(0, 0.1)| = 0.08
@@ -137,5 +138,5 @@ def test_dart_noise_is_executed_but_not_recorded_and_the_expert_still_succeeds()
     for t, u in enumerate(demo["applied"]):
         assert np.array_equal(obs["image"], demo["images"][t])
         obs, *_ = world.step(u.astype(float))
-    again = expert.demonstrate(world, seed=4, cfg=cfg)
+    again = controller.demonstrate(world, seed=4, cfg=cfg)
     assert np.array_equal(again["actions"], demo["actions"])       # the noise is seeded

@@ -5,7 +5,8 @@ import pytest
 from autograd import grad
 
 from helpers import assert_batched_equals_loop
-from oneshot import batched, imitation, maml, network
+from oneshot.maml import batched, imitation, inner
+from oneshot.policy import network
 
 CFG = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5, 5))
 
@@ -42,7 +43,7 @@ def test_adapting_only_the_convolutions_leaves_the_rest_and_matches_the_loop(rng
                                             only=("conv",))
     # and it is a different objective from adapting everything
     tasks = [(tuple(a[b] for a in adapt), tuple(e[b] for e in evaluate)) for b in range(3)]
-    v_all, _ = maml.meta_gradient(params, tasks, imitation.imitation_loss, 0.05, 2)
+    v_all, _ = inner.meta_gradient(params, tasks, imitation.imitation_loss, 0.05, 2)
     assert v_all != pytest.approx(v1, rel=1e-6)
     with pytest.raises(ValueError, match="no parameter starts with"):
         imitation.adapt(params, tuple(a[0] for a in adapt), 0.05, 1, only=("nothing",))
@@ -128,12 +129,12 @@ def test_sample_meta_batch_pairs_two_different_demos_of_one_task(rng):
 
 def test_learnt_step_sizes_batched_equals_the_per_task_loop(rng):
     params = network.init_params(CFG, rng, dtype=np.float64)
-    params = {**params, **maml.init_step_sizes(params, 0.05, only=("conv0_",))}
-    params[maml.STEP_PREFIX + "conv0_w"] = params[maml.STEP_PREFIX + "conv0_w"] * rng.uniform(0, 2, params["conv0_w"].shape)
+    params = {**params, **inner.init_step_sizes(params, 0.05, only=("conv0_",))}
+    params[inner.STEP_PREFIX + "conv0_w"] = params[inner.STEP_PREFIX + "conv0_w"] * rng.uniform(0, 2, params["conv0_w"].shape)
     adapt, evaluate = _demos(rng, B=3), _demos(rng, B=3)
     _, (_, g2) = assert_batched_equals_loop(params, adapt, evaluate, imitation.imitation_loss, 0.0, 1,
                                             only=("conv0_",))
-    assert np.abs(g2[maml.STEP_PREFIX + "conv0_w"]).max() > 0
+    assert np.abs(g2[inner.STEP_PREFIX + "conv0_w"]).max() > 0
 
 
 def test_trial_seeds_are_distinct_and_the_ones_evaluation_always_used():

@@ -11,7 +11,7 @@ import pytest
 from autograd.test_util import check_grads
 
 from helpers import naive_conv2d
-from oneshot.layers import (_col2im_3x3_stride2, _col2im_any, add_bias, bias_grad, broadcast_bias, col2im,
+from oneshot.policy.layers import (_col2im_3x3_stride2, _col2im_any, add_bias, bias_grad, broadcast_bias, col2im,
                             concat_last, conv2d, im2col, matmul, matmul_dw, matmul_dx, relu, spatial_soft_argmax)
 
 

@@ -12,8 +12,8 @@ from autograd import grad
 from autograd.test_util import check_grads
 
 from helpers import make_demo, make_mlp, make_tasks, mlp_loss
-from oneshot import batched
-from oneshot.maml import (STEP_PREFIX, clip_gradients, init_step_sizes, inner_update, meta_gradient,
+from oneshot.maml import batched
+from oneshot.maml.inner import (STEP_PREFIX, clip_gradients, init_step_sizes, inner_update, meta_gradient,
                           meta_objective)
 
 

@@ -16,7 +16,7 @@ from autograd.core import primitive_vjps
 from autograd.test_util import check_grads
 
 from helpers import naive_conv2d, squared_error
-from oneshot.network import (STRIDE, NetworkConfig, conv2d_reference, count_flops, forward, forward_reference,
+from oneshot.policy.network import (STRIDE, NetworkConfig, conv2d_reference, count_flops, forward, forward_reference,
                              images_to_float, init_params, param_shapes, predict, predict_tasks)
 
 TINY = NetworkConfig(image_size=8, channels=(2, 3), hidden=(5, 4), state_dim=3, action_dim=2)

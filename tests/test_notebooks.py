@@ -28,7 +28,9 @@ from nbclient import NotebookClient
 from nbclient.exceptions import CellExecutionError
 
 import oneshot
-from oneshot import demo, experiments, palette
+from oneshot import demo
+from oneshot.experiments import fig2
+from oneshot.world import palette
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
 EXERCISE_NOTEBOOKS = sorted((NOTEBOOKS / "exercises").glob("*.ipynb"))
@@ -172,12 +174,12 @@ def test_one_shot_imitation(tmp_path):
 
 @pytest.fixture(scope="module")
 def fig2_results(tmp_path_factory):
-    """The results folder notebook 4 reads: the committed one (experiments.RESULTS) when it holds a
+    """The results folder notebook 4 reads: the committed one (fig2.RESULTS) when it holds a
     Figure 2 sweep, else a folder made here with `python -m oneshot.experiments fig2 --profile tiny` (20
     runs of 2 meta-iterations: seconds), in the committed format, as fig2_quick. Its copy as fig2_search
     stands in for the hyperparameter search, so that the notebook's search table runs too."""
-    if any(os.path.exists(os.path.join(experiments.RESULTS, f"fig2_{p}", "summary.json")) for p in ("paper", "quick")):
-        return Path(experiments.RESULTS)
+    if any(os.path.exists(os.path.join(fig2.RESULTS, f"fig2_{p}", "summary.json")) for p in ("paper", "quick")):
+        return Path(fig2.RESULTS)
     folder = tmp_path_factory.mktemp("fig2")
     results = folder / "results"
     command = [sys.executable, "-m", "oneshot.experiments", "fig2", "--profile", "tiny", "--no-progress",
@@ -207,7 +209,7 @@ EXPERIMENT_VALUES = """{
 def test_experiments(fig2_results, tmp_path):
     _, v = execute(with_results(fig2_results), "04_experiments.ipynb", tmp_path, values=EXPERIMENT_VALUES)
     profile = "paper" if (fig2_results / "fig2_paper" / "summary.json").exists() else "quick"
-    rows, summary = experiments.load_results(profile, results=str(fig2_results))
+    rows, summary = fig2.load_results(profile, results=str(fig2_results))
     assert v["results"] == str(fig2_results) and v["profile"] == profile
     # Section 2: every method and size the summary holds, and every run.
     points = {(m, p["size"]): p for m, ps in summary["methods"].items() for p in ps}
@@ -215,7 +217,7 @@ def test_experiments(fig2_results, tmp_path):
     assert v["sizes"] == sorted({size for _, size in points})
     # Section 3: adapted vs unadapted, for exactly the MIL methods; the adapted counts, pooled from the
     # rows, are the summary's; the unadapted ones are counts of the same trials.
-    mil = {m for m in summary["methods"] if experiments.METHOD_CONFIGS[m].method == "mil"}
+    mil = {m for m in summary["methods"] if fig2.METHOD_CONFIGS[m].method == "mil"}
     assert set(v["adaptation"]) == mil
     for method, by_size in v["adaptation"].items():
         assert sorted(map(int, by_size)) == sorted(p["size"] for p in summary["methods"][method])
@@ -247,11 +249,11 @@ def test_experiments(fig2_results, tmp_path):
         assert v["search_table"] is None
     # Section 7: every method of the figure ran; the trained ones' losses are finite and the fixed probe
     # meta-batch's loss fell; one trial per held-out colour (2).
-    assert list(v["live"]) == list(experiments.METHODS)
+    assert list(v["live"]) == list(fig2.METHODS)
     for method, r in v["live"].items():
         assert r["trials"] == 2 and 0 <= r["successes"] <= r["trials"]
         if method == "random":
-            assert r["std"] in experiments.METHOD_CONFIGS["random"].random_stds
+            assert r["std"] in fig2.METHOD_CONFIGS["random"].random_stds
         else:
             assert len(r["history"]) == v["ITERATIONS"] and np.all(np.isfinite(r["history"]))
             assert np.isfinite(r["probe_before"]) and r["probe_after"] < r["probe_before"], method
@@ -260,7 +262,7 @@ def test_experiments(fig2_results, tmp_path):
 def test_experiments_notebook_runs_without_matplotlib(fig2_results, tmp_path):
     nb, v = execute(with_results(fig2_results), "04_experiments.ipynb", tmp_path, first=WITHOUT_PLOTS,
                     values=EXPERIMENT_VALUES)
-    assert v["plt_is_none"] and len(v["live"]) == len(experiments.METHODS)
+    assert v["plt_is_none"] and len(v["live"]) == len(fig2.METHODS)
     assert "install matplotlib to see the figure" in stdout(*nb.cells)
 
 

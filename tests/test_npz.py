@@ -11,7 +11,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from oneshot import npz
+from oneshot.data import npz
 
 
 def some_arrays():

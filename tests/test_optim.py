@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from oneshot.optim import adam_init, adam_step, state_from_arrays, state_to_arrays
+from oneshot.maml.optim import adam_init, adam_step, state_from_arrays, state_to_arrays
 
 
 def test_two_steps_match_hand_computed_adam():

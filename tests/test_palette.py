@@ -1,4 +1,4 @@
-"""The palette (oneshot.palette): "hues" mode pinned bit for bit, the "grid" mode's counts, split margins
+"""The palette (oneshot.world.palette): "hues" mode pinned bit for bit, the "grid" mode's counts, split margins
 and scene sampling, and a grid palette end to end through the world, the expert, collection and a saved
 dataset."""
 import dataclasses
@@ -9,10 +9,12 @@ import re
 import numpy as np
 import pytest
 
-from oneshot import collect, data, expert, palette
-from oneshot.palette import PaletteConfig
-from oneshot.render import world_to_pixels
-from oneshot.world import ReachWorld, Scene, WorldConfig
+from oneshot.data import collection, datasets
+from oneshot.expert import controller
+from oneshot.world import palette
+from oneshot.world.palette import PaletteConfig
+from oneshot.world.render import world_to_pixels
+from oneshot.world.reach import ReachWorld, Scene, WorldConfig
 
 GRID = PaletteConfig(mode="grid")
 
@@ -65,7 +67,7 @@ def test_old_configs_and_metadata_without_mode_load_as_hues_mode():
     assert PaletteConfig(**old) == PaletteConfig() and PaletteConfig(**old).mode == "hues"
     world = json.loads(json.dumps(dataclasses.asdict(WorldConfig())))    # as a dataset's metadata holds it
     world["palette"] = old
-    assert data.world_config({"world": world}) == WorldConfig()
+    assert datasets.world_config({"world": world}) == WorldConfig()
 
 
 def test_grid_config_round_trips_through_json_metadata():
@@ -183,12 +185,12 @@ def test_the_expert_demonstrates_and_collect_records_grid_colours(tmp_path):
     world = ReachWorld(WorldConfig(palette=GRID, split="train"))
     train = palette.split_colours("train", GRID)
     for colour in (train[0], train[-1]):
-        assert expert.demonstrate(world, seed=0, options={"target_colour": int(colour)})["success"]
-    dataset = collect.collect(2, 2, "train", seed=0, workers=1, world_cfg=WorldConfig(palette=GRID),
+        assert controller.demonstrate(world, seed=0, options={"target_colour": int(colour)})["success"]
+    dataset = collection.collect(2, 2, "train", seed=0, workers=1, world_cfg=WorldConfig(palette=GRID),
                               progress=False)
-    data.save(dataset, tmp_path / "grid.npz")
-    back = data.load(tmp_path / "grid.npz")
-    assert data.world_config(back["metadata"]).palette == GRID
+    datasets.save(dataset, tmp_path / "grid.npz")
+    back = datasets.load(tmp_path / "grid.npz")
+    assert datasets.world_config(back["metadata"]).palette == GRID
     assert np.array_equal(back["colours"], dataset["colours"])
     assert set(back["colours"].ravel().tolist()) <= set(train.tolist())
     assert back["colours"].max() > 72              # indices past the hue count survive the int16 arrays

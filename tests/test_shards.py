@@ -1,4 +1,4 @@
-"""Frame shards: several processes computing one second-order meta-gradient (oneshot.shards)."""
+"""Frame shards: several processes computing one second-order meta-gradient (oneshot.maml.shards)."""
 import dataclasses
 import os
 import select
@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 from autograd.test_util import check_grads
 
-from oneshot import batched, config, network, shards
+from oneshot.maml import batched, shards
+from oneshot.policy import network
+from oneshot.training import config
 
 
 def _setup(rng, dtype=np.float64, T=4, B=5, **overrides):
@@ -129,7 +131,7 @@ import sys, time
 import numpy as np
 sys.path.insert(0, {tests!r})
 from test_shards import _setup
-from oneshot import shards
+from oneshot.maml import shards
 settings, params, adapt, evaluate = _setup(np.random.default_rng(0))
 pool = shards.make_pool(2)
 shards.meta_gradient(params, adapt, evaluate, settings, 2, pool)

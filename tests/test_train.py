@@ -11,7 +11,11 @@ import sys
 import numpy as np
 import pytest
 
-from oneshot import batched, checkpoint, config, data, evaluate, imitation, maml, network, optim, train
+from oneshot.data import datasets
+from oneshot.maml import batched, imitation, inner, optim
+from oneshot.policy import network
+from oneshot.training import checkpoint, config, run_folder, scoring
+from oneshot import evaluate
 from test_checkpoint import _set, rewrite
 
 
@@ -26,7 +30,7 @@ def _same(p, q):
 
 
 def test_checkpoint_round_trip(tiny, tmp_path):
-    params = train.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
+    params = run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
     ckpt = checkpoint.load(tmp_path / "run" / "checkpoint.npz")
     assert _same(ckpt["params"], params) and ckpt["iteration"] == 2
     assert ckpt["config"] == dataclasses.replace(tiny, iterations=2)
@@ -41,18 +45,18 @@ def test_checkpoint_round_trip(tiny, tmp_path):
 @pytest.mark.parametrize("shards", [1, 2])
 def test_resume_gives_the_parameters_of_an_uninterrupted_run(tiny, tmp_path, shards):
     cfg = dataclasses.replace(tiny, iterations=8, checkpoint_every=3, shards=shards)
-    whole = train.train(cfg, tmp_path / "whole", progress=False)
-    train.train(cfg, tmp_path / "split", progress=False, stop_after=4)   # "killed" after iteration 4
+    whole = run_folder.train(cfg, tmp_path / "whole", progress=False)
+    run_folder.train(cfg, tmp_path / "split", progress=False, stop_after=4)   # "killed" after iteration 4
     ckpt = checkpoint.load(tmp_path / "split" / "checkpoint.npz")
     assert ckpt["iteration"] == 4
-    resumed = train.train(cfg, tmp_path / "split", resume=True, progress=False)
+    resumed = run_folder.train(cfg, tmp_path / "split", resume=True, progress=False)
     assert _same(resumed, whole)
     lines = [json.loads(x) for x in open(tmp_path / "split" / "log.jsonl")]
     assert [r["iteration"] for r in lines] == list(range(1, 9))          # no duplicated log lines
     with pytest.raises(FileExistsError, match="--resume"):
-        train.train(cfg, tmp_path / "whole", progress=False)
+        run_folder.train(cfg, tmp_path / "whole", progress=False)
     with pytest.raises(ValueError, match=r"different config \(alpha: checkpoint .*, now 0\.01\)"):
-        train.train(dataclasses.replace(cfg, alpha=0.01), tmp_path / "whole", resume=True, progress=False)
+        run_folder.train(dataclasses.replace(cfg, alpha=0.01), tmp_path / "whole", resume=True, progress=False)
 
 
 def test_the_checkpoint_and_log_count_meta_training_time_over_every_sitting(tiny, tmp_path, monkeypatch):
@@ -61,20 +65,20 @@ def test_the_checkpoint_and_log_count_meta_training_time_over_every_sitting(tiny
     from 0 in each sitting, as a new process's."""
     def new_sitting():
         ticks = itertools.count()
-        monkeypatch.setattr(train.time, "perf_counter", lambda: float(next(ticks)))
+        monkeypatch.setattr(run_folder.time, "perf_counter", lambda: float(next(ticks)))
     cfg = dataclasses.replace(tiny, iterations=8, checkpoint_every=2, log_every=1)
     run = tmp_path / "run"
     new_sitting()
-    train.train(cfg, run, progress=False, stop_after=4)
+    run_folder.train(cfg, run, progress=False, stop_after=4)
     first = checkpoint.load(run / "checkpoint.npz")["seconds"]
     new_sitting()
-    train.train(cfg, run, resume=True, progress=False, stop_after=2)
+    run_folder.train(cfg, run, resume=True, progress=False, stop_after=2)
     second = checkpoint.load(run / "checkpoint.npz")["seconds"]
     logged = [json.loads(x)["seconds"] for x in open(run / "log.jsonl")]
     assert 0 < first < second and logged == sorted(logged) and logged[3] <= first < logged[4]
     rewrite(run / "checkpoint.npz", _set(None, "seconds", None))    # as a checkpoint before this record
     new_sitting()
-    train.train(cfg, run, resume=True, progress=False)
+    run_folder.train(cfg, run, resume=True, progress=False)
     assert checkpoint.load(run / "checkpoint.npz")["seconds"] is None
 
 
@@ -89,14 +93,14 @@ def test_nan_stops_training_and_keeps_the_last_good_checkpoint(tiny, tmp_path, m
         return (np.float32(np.nan), grads) if calls["n"] == 5 else (value, grads)
 
     monkeypatch.setattr(batched, "meta_gradient_batched", poisoned)
-    with pytest.raises(train.TrainingDiverged, match=r"iteration 5.*iteration 4"):
-        train.train(cfg, tmp_path / "run", progress=False)
+    with pytest.raises(run_folder.TrainingDiverged, match=r"iteration 5.*iteration 4"):
+        run_folder.train(cfg, tmp_path / "run", progress=False)
     assert checkpoint.load(tmp_path / "run" / "checkpoint.npz")["iteration"] == 4
 
 
 def test_a_short_seeded_run_lowers_the_meta_objective(tiny, tmp_path):
     cfg = dataclasses.replace(tiny, iterations=25, meta_batch=3, lr=1e-3)
-    train_set = data.load(cfg.train_data)
+    train_set = datasets.load(cfg.train_data)
     demos = imitation.prepare_demos(train_set["images"], train_set["states"], train_set["actions"], 0.5)
     batches = [imitation.sample_meta_batch(demos, np.random.default_rng(100 + i), 3) for i in range(4)]
 
@@ -104,20 +108,20 @@ def test_a_short_seeded_run_lowers_the_meta_objective(tiny, tmp_path):
         return np.mean([batched.meta_objective_batched(p, a, e, imitation.imitation_loss, cfg.alpha, cfg.inner_steps)
                         for a, e in batches])
 
-    first = train.train(dataclasses.replace(cfg, iterations=1), tmp_path / "one", progress=False)
-    last = train.train(cfg, tmp_path / "last", progress=False)
+    first = run_folder.train(dataclasses.replace(cfg, iterations=1), tmp_path / "one", progress=False)
+    last = run_folder.train(cfg, tmp_path / "last", progress=False)
     assert objective(last) < 0.5 * objective(first)
 
 
 def test_unknown_inner_params_is_refused_before_training(tiny, tmp_path):
     with pytest.raises(ValueError, match="inner_params must be one of"):
-        train.train(dataclasses.replace(tiny, inner_params="fc"), tmp_path / "run", progress=False)
+        run_folder.train(dataclasses.replace(tiny, inner_params="fc"), tmp_path / "run", progress=False)
     assert not (tmp_path / "run").exists()
 
 
 def test_inner_params_choose_which_parameters_adapt():
     net = network.init_params(network.NetworkConfig(bias_transform=4, feature_points=True), np.random.default_rng(0))
-    adapted = {name: maml.adapted_keys(net, config.inner_only(dataclasses.replace(config.TrainConfig(), inner_params=name)))
+    adapted = {name: inner.adapted_keys(net, config.inner_only(dataclasses.replace(config.TrainConfig(), inner_params=name)))
                for name in ("all", "conv", "conv0")}
     assert adapted["all"] == list(net)
     assert adapted["conv"] == ["conv0_w", "conv0_b", "conv1_w", "conv1_b", "conv2_w", "conv2_b"]
@@ -126,14 +130,14 @@ def test_inner_params_choose_which_parameters_adapt():
 
 def test_learnt_step_sizes_are_meta_trained_checkpointed_and_used_at_meta_test(tiny, tmp_path):
     cfg = dataclasses.replace(tiny, iterations=4, inner_params="conv0", inner_steps=1, alpha=0.1, learn_alpha=True)
-    params = train.train(cfg, tmp_path / "run", progress=False)
-    steps = {k: v for k, v in params.items() if k.startswith(maml.STEP_PREFIX)}
-    assert sorted(steps) == [maml.STEP_PREFIX + "conv0_b", maml.STEP_PREFIX + "conv0_w"]
-    assert all(v.shape == params[k[len(maml.STEP_PREFIX):]].shape for k, v in steps.items())
+    params = run_folder.train(cfg, tmp_path / "run", progress=False)
+    steps = {k: v for k, v in params.items() if k.startswith(inner.STEP_PREFIX)}
+    assert sorted(steps) == [inner.STEP_PREFIX + "conv0_b", inner.STEP_PREFIX + "conv0_w"]
+    assert all(v.shape == params[k[len(inner.STEP_PREFIX):]].shape for k, v in steps.items())
     assert all(not np.allclose(v, 0.1) for v in steps.values())              # Adam moved them
     assert _same(checkpoint.load(tmp_path / "run" / "checkpoint.npz")["params"], params)
     # meta-test adapts with the learnt sizes, not with alpha: zero sizes leave the policy as it is
-    demo = imitation.prepare_demos(*(data.load(cfg.heldout_data)[k][0, 0] for k in ("images", "states", "actions")), 0.5)
+    demo = imitation.prepare_demos(*(datasets.load(cfg.heldout_data)[k][0, 0] for k in ("images", "states", "actions")), 0.5)
     frozen = {**params, **{k: np.zeros_like(v) for k, v in steps.items()}}
     adapted = imitation.adapt(frozen, demo, cfg.alpha, 1, only=config.inner_only(cfg))
     assert _same(adapted, {k: v for k, v in params.items() if k not in steps})
@@ -141,11 +145,11 @@ def test_learnt_step_sizes_are_meta_trained_checkpointed_and_used_at_meta_test(t
 
 def test_moving_average_of_the_parameters_resumes_exactly_and_is_what_the_policy_uses(tiny, tmp_path):
     cfg = dataclasses.replace(tiny, iterations=4, checkpoint_every=2, ema=0.5)
-    whole = train.train(cfg, tmp_path / "whole", progress=False)
+    whole = run_folder.train(cfg, tmp_path / "whole", progress=False)
     # the same run one iteration at a time (each call resumes), recording the parameters after each step
-    trajectory = [train.train(cfg, tmp_path / "split", progress=False, stop_after=1)]
+    trajectory = [run_folder.train(cfg, tmp_path / "split", progress=False, stop_after=1)]
     for _ in range(3):
-        trajectory.append(train.train(cfg, tmp_path / "split", resume=True, progress=False, stop_after=1))
+        trajectory.append(run_folder.train(cfg, tmp_path / "split", resume=True, progress=False, stop_after=1))
     a, b = (checkpoint.load(tmp_path / r / "checkpoint.npz") for r in ("whole", "split"))
     assert _same(a["params"], whole) and _same(b["params"], whole) and _same(a["ema"], b["ema"])
     # ema_0 = initial parameters, ema_t = 0.5 ema_{t-1} + 0.5 params_t, written out in float64
@@ -157,23 +161,23 @@ def test_moving_average_of_the_parameters_resumes_exactly_and_is_what_the_policy
         assert a["ema"][k].dtype == np.float32
     assert not _same(a["ema"], a["params"])
     assert checkpoint.policy_params(a) is a["ema"] and checkpoint.policy_params(a, raw=True) is a["params"]
-    train.train(dataclasses.replace(tiny, iterations=1), tmp_path / "plain", progress=False)
+    run_folder.train(dataclasses.replace(tiny, iterations=1), tmp_path / "plain", progress=False)
     assert checkpoint.load(tmp_path / "plain" / "checkpoint.npz")["ema"] is None
     with pytest.raises(ValueError, match="decay, in"):
-        train.train(dataclasses.replace(tiny, ema=1.0), tmp_path / "bad", progress=False)
+        run_folder.train(dataclasses.replace(tiny, ema=1.0), tmp_path / "bad", progress=False)
 
 
 def test_learning_rate_schedules():
     cfg = dataclasses.replace(config.TrainConfig(), lr=1e-3, iterations=100)
-    assert [train.learning_rate(cfg, i) for i in (0, 50, 99)] == [1e-3] * 3
+    assert [run_folder.learning_rate(cfg, i) for i in (0, 50, 99)] == [1e-3] * 3
     cos = dataclasses.replace(cfg, lr_schedule="cosine")
-    assert train.learning_rate(cos, 0) == pytest.approx(1e-3)
-    assert train.learning_rate(cos, 50) == pytest.approx(0.5e-3)
-    assert train.learning_rate(cos, 100) == pytest.approx(0.0, abs=1e-15)
-    lrs = [train.learning_rate(cos, i) for i in range(101)]
+    assert run_folder.learning_rate(cos, 0) == pytest.approx(1e-3)
+    assert run_folder.learning_rate(cos, 50) == pytest.approx(0.5e-3)
+    assert run_folder.learning_rate(cos, 100) == pytest.approx(0.0, abs=1e-15)
+    lrs = [run_folder.learning_rate(cos, i) for i in range(101)]
     assert all(a >= b for a, b in itertools.pairwise(lrs))             # never increases
     with pytest.raises(ValueError, match="lr_schedule must be"):
-        train.learning_rate(dataclasses.replace(cfg, lr_schedule="step"), 0)
+        run_folder.learning_rate(dataclasses.replace(cfg, lr_schedule="step"), 0)
 
 
 def test_corrupt_checkpoint_is_named(tmp_path):
@@ -223,14 +227,14 @@ def test_checkpoints_recording_the_network_stride_load_only_with_stride_2(tmp_pa
 
 
 def test_wilson_interval_against_known_values():
-    lo, hi = evaluate.wilson_interval(8, 10)
+    lo, hi = scoring.wilson_interval(8, 10)
     assert lo == pytest.approx(0.4902, abs=1e-4) and hi == pytest.approx(0.9433, abs=1e-4)
-    lo, hi = evaluate.wilson_interval(100, 100)
+    lo, hi = scoring.wilson_interval(100, 100)
     assert hi == pytest.approx(1.0) and lo == pytest.approx(0.9630, abs=1e-4)
 
 
 def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, capsys):
-    train.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
+    run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
     out = tmp_path / "eval.json"
     results = evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--heldout", tiny.heldout_data,
                              "--train", "", "--trials", "3", "--json", str(out), "--unadapted"])
@@ -250,14 +254,14 @@ def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, caps
     assert results["heldout_unadapted"]["trials"] == 6
     assert results["adaptation_gain"]["pairs"] == 2
     # the trial scenes are not the demos' scenes
-    heldout = data.load(tiny.heldout_data)
+    heldout = datasets.load(tiny.heldout_data)
     world_seeds = {imitation.trial_seed(0, i, j) for i in range(2) for j in range(3)}
     assert not world_seeds & set(heldout["seeds"].ravel().tolist())
 
 
 def test_evaluate_command_can_meta_test_with_another_step_size(tiny, tmp_path, capsys):
     # alpha 0 leaves the policy as it is, so its "adapted" trials are the unadapted ones, scene by scene.
-    train.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
+    run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
     ckpt = str(tmp_path / "run" / "checkpoint.npz")
     results = evaluate.main([ckpt, "--heldout", tiny.heldout_data, "--train", "", "--trials", "3",
                              "--unadapted", "--alpha", "0", "--inner-steps", "2"])
@@ -271,9 +275,9 @@ def test_evaluate_command_can_meta_test_with_another_step_size(tiny, tmp_path, c
 
 
 def test_adaptation_gain_scores_a_second_demo_before_and_after_adapting(tiny, tmp_path):
-    params = train.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
-    heldout = data.load(tiny.heldout_data)                       # 2 colours x 2 demos: 2 pairs
-    g = evaluate.adaptation_gain(params, heldout, alpha=0.01, steps=2)
+    params = run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
+    heldout = datasets.load(tiny.heldout_data)                       # 2 colours x 2 demos: 2 pairs
+    g = scoring.adaptation_gain(params, heldout, alpha=0.01, steps=2)
     demos = imitation.prepare_demos(heldout["images"], heldout["states"], heldout["actions"],
                                     heldout["metadata"]["world"]["arm"]["max_torque"])
     task = [tuple(a[i] for a in demos) for i in range(2)]
@@ -283,13 +287,13 @@ def test_adaptation_gain_scores_a_second_demo_before_and_after_adapting(tiny, tm
     assert g["pairs"] == 2
     assert np.isclose(g["before"], np.mean(before), rtol=1e-5) and np.isclose(g["after"], np.mean(after), rtol=1e-5)
     assert g["after"] != g["before"]
-    same = evaluate.adaptation_gain(params, heldout, alpha=0.0, steps=1)   # no step: no change
+    same = scoring.adaptation_gain(params, heldout, alpha=0.0, steps=1)   # no step: no change
     assert np.isclose(same["before"], same["after"], rtol=1e-6)
 
 
 def test_demo_adapts_a_checkpoint_and_reports_counts(tiny, tmp_path, capsys):
     from oneshot import demo
-    train.train(dataclasses.replace(tiny, iterations=1), tmp_path / "run", progress=False)
+    run_folder.train(dataclasses.replace(tiny, iterations=1), tmp_path / "run", progress=False)
     result = demo.main(["--checkpoint", str(tmp_path / "run" / "checkpoint.npz"), "--trials", "1",
                         "--out", str(tmp_path / "out")])
     assert result["trials"] == 12 and 0 <= result["successes"] <= 12
@@ -298,7 +302,7 @@ def test_demo_adapts_a_checkpoint_and_reports_counts(tiny, tmp_path, capsys):
     assert (tmp_path / "out" / "one_shot.png").exists()
     # the animation: one frame per time step, the demo and the policy before and after adapting side by side
     from PIL import Image
-    from oneshot.world import WorldConfig
+    from oneshot.world.reach import WorldConfig
     with Image.open(tmp_path / "out" / "one_shot_trial.gif") as gif:
         assert gif.n_frames == WorldConfig().horizon and gif.width > 3 * gif.height / 2
 

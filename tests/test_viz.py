@@ -1,10 +1,12 @@
-"""Pictures (oneshot.viz) and the demo's choice of what to show (oneshot.demo): sizes, the target ring
+"""Pictures (oneshot.tools.viz) and the demo's choice of what to show (oneshot.demo): sizes, the target ring
 where the scene puts the target, labels, the GIF's frames, and a failure shown when there is one."""
 import numpy as np
 from PIL import Image
 
-from oneshot import demo, render, viz
-from oneshot.world import Scene, WorldConfig
+from oneshot import demo
+from oneshot.tools import viz
+from oneshot.world import render
+from oneshot.world.reach import Scene, WorldConfig
 
 H = W = 32
 SCALE = 4

@@ -1,12 +1,12 @@
-"""The reaching world: scenes, rendering, determinism, success, and errors (oneshot.world)."""
+"""The reaching world: scenes, rendering, determinism, success, and errors (oneshot.world.reach)."""
 import dataclasses
 
 import numpy as np
 import pytest
 
-from oneshot import palette
-from oneshot.render import world_to_pixels
-from oneshot.world import ReachWorld, Scene, WorldConfig, closest_object, is_success, observation_state, sample_scene
+from oneshot.world import palette
+from oneshot.world.render import world_to_pixels
+from oneshot.world.reach import ReachWorld, Scene, WorldConfig, closest_object, is_success, observation_state, sample_scene
 
 
 def test_a_disc_of_colour_c_appears_where_the_scene_says_in_colour_c():

@@ -12,7 +12,7 @@ Ten exercises cover the paper's parts in reading order (`python -m oneshot.exerc
 From a notebook: `check(5, imitation_loss)` prints one line, "exercise 5 (eq. 2, the imitation loss):
 correct" or "exercise 5: not yet: <the first difference, in words>", and returns a `Result` (passed,
 message). The checker runs the function on random and edge-case inputs and compares it with the
-package's own function (`oneshot.imitation.imitation_loss` here); when it differs, it names the known
+package's own function (`oneshot.maml.imitation.imitation_loss` here); when it differs, it names the known
 mistake that explains the difference, if one does. `EXERCISES[n]` says what exercise n asks for;
 `reference(n)` is its reference solution (for teachers; `oneshot/exercises/solutions.py`).
 From a shell: `python -m oneshot.exercises check 5 --file my_solution.py`, and `grade DIR` for a

@@ -14,7 +14,7 @@ The final fifth of T steps is the last max(1, T // 5) of them (10 of 50; 1 of 3)
 Returns True or False.
 """),
     Exercise(2, "kinematics", "Sec. IV, forward kinematics and its Jacobian", "IV", "q, l1, l2", """
-Forward kinematics of the 2-link arm, and its Jacobian (`oneshot.arm`).
+Forward kinematics of the 2-link arm, and its Jacobian (`oneshot.world.arm`).
 
 q: (..., 2) joint angles, radians: q1 = q[..., 0] the shoulder angle from the +x axis, q2 =
 q[..., 1] the elbow angle relative to link 1. l1, l2: the link lengths, metres.
@@ -24,7 +24,7 @@ J (..., 2, 2) = dp/dq, rows (x, y), columns (q1, q2): J[..., i, j] = d p_i / d q
     Exercise(3, "backward_step", "Sec. IV, one iLQG backward-pass step", "IV",
              "Vx, Vxx, A, B, lx, lu, lxx, luu, lux, mu", """
 One step of iLQG's backward pass: the Q-terms, the gains, and the value function one step back
-(Tassa, Erez & Todorov 2012, eqs. 10-11; `oneshot.ilqg.backward_pass` does every step).
+(Tassa, Erez & Todorov 2012, eqs. 10-11; `oneshot.expert.ilqg.backward_pass` does every step).
 
 Vx (n,), Vxx (n, n): the value function's gradient and Hessian at time t + 1.
 A (n, n), B (n, m): the dynamics linearised at time t, dx_{t+1} = A dx_t + B du_t.
@@ -50,7 +50,7 @@ Paper eq. (2), the behavioural-cloning loss of one demonstration:
 
 params: the policy's parameters, a dict of arrays. demo: (images (T, H, W, 3) float in
 [0, 1], states (T, 6), actions (T, 2)), in network units. The policy's actions for all T
-frames at once: oneshot.network.forward(params, images, states), (T, 2).
+frames at once: oneshot.policy.network.forward(params, images, states), (T, 2).
 Returns a scalar. Write it with autograd.numpy: MAML differentiates it.
 """),
     Exercise(6, "inner_update", "eq. 1, the inner update", "II", "params, demo, loss_fn, alpha, only=None", """

@@ -2,7 +2,8 @@
 the Wilson interval of a success rate, one LSTM step. Each compares with the package's own function."""
 import numpy as np
 
-from oneshot import baselines, evaluate
+from oneshot.methods import baselines
+from oneshot.training import scoring
 from oneshot.exercises.checking import Case, Checker, Mistake
 from oneshot.exercises.compare import Out
 
@@ -58,7 +59,7 @@ CONTEXT = Checker(
     ))
 
 # ----------------------------------------------------------------------------------------------------
-# 9. The Wilson interval: evaluate.wilson_interval
+# 9. The Wilson interval: scoring.wilson_interval
 # ----------------------------------------------------------------------------------------------------
 
 
@@ -86,7 +87,7 @@ def _wrong_wilson(wald=False, short_half=False, centre_p=False, fixed_z=None):
 
 
 WILSON = Checker(
-    expected=evaluate.wilson_interval, cases=_wilson_cases,
+    expected=scoring.wilson_interval, cases=_wilson_cases,
     out=Out("tuple", parts=(Out("number", "your lower bound"), Out("number", "your upper bound"))),
     mistakes=(
         Mistake("yours is the Wald interval p +- z sqrt(p (1 - p) / n): Wilson's centre is pulled towards 1/2 "

@@ -1,17 +1,17 @@
 """Checkers of exercises 6 and 7 (MAML, paper Section II): the inner update, eq. (1), on a subset of
 the parameters, and the second- and first-order meta-gradients on a toy problem. Each compares with
-the package's own functions (`maml.inner_update`, `maml.meta_gradient`)."""
+the package's own functions (`inner.inner_update`, `inner.meta_gradient`)."""
 import autograd.numpy as anp
 import numpy as np
 from autograd import grad
 from autograd.tracer import getval
 
-from oneshot import maml
+from oneshot.maml import inner
 from oneshot.exercises.checking import Case, Checker, Mistake
 from oneshot.exercises.compare import Out
 
 # ----------------------------------------------------------------------------------------------------
-# 6. The inner update, eq. (1), one step on the parameters `only` names: maml.inner_update
+# 6. The inner update, eq. (1), one step on the parameters `only` names: inner.inner_update
 # ----------------------------------------------------------------------------------------------------
 
 
@@ -23,7 +23,7 @@ def toy_loss(params, demo):
 
 
 def _package_inner_update(params, demo, loss_fn, alpha, only=None):
-    return maml.inner_update(params, demo, loss_fn, alpha, steps=1, only=only)
+    return inner.inner_update(params, demo, loss_fn, alpha, steps=1, only=only)
 
 
 def _through(eval_demo):
@@ -87,7 +87,7 @@ INNER = Checker(
     ))
 
 # ----------------------------------------------------------------------------------------------------
-# 7. Second- against first-order meta-gradient, y = w x: maml.meta_gradient
+# 7. Second- against first-order meta-gradient, y = w x: inner.meta_gradient
 # ----------------------------------------------------------------------------------------------------
 
 
@@ -99,8 +99,8 @@ def line_loss(params, demo):
 
 def _package_meta_gradients(w, alpha, adapt_demo, eval_demo):
     params, tasks = {"w": np.array(float(w))}, [(adapt_demo, eval_demo)]
-    _, second = maml.meta_gradient(params, tasks, line_loss, alpha, 1)
-    _, first = maml.meta_gradient(params, tasks, line_loss, alpha, 1, first_order=True)
+    _, second = inner.meta_gradient(params, tasks, line_loss, alpha, 1)
+    _, first = inner.meta_gradient(params, tasks, line_loss, alpha, 1, first_order=True)
     return float(second["w"]), float(first["w"])
 
 

@@ -4,10 +4,11 @@ import autograd.numpy as anp
 import numpy as np
 from autograd import grad
 
-from oneshot import imitation, layers
+from oneshot.maml import imitation
+from oneshot.policy import layers
 from oneshot.exercises.checking import Case, Checker, Mistake
 from oneshot.exercises.compare import Out
-from oneshot.network import NetworkConfig, forward, init_params
+from oneshot.policy.network import NetworkConfig, forward, init_params
 
 # ----------------------------------------------------------------------------------------------------
 # 4. im2col convolution: layers.conv2d (= network.conv2d_reference, tested)

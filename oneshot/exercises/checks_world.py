@@ -2,12 +2,13 @@
 the arm's kinematics, one iLQG backward-pass step. Each compares with the package's own function."""
 import numpy as np
 
-from oneshot import arm, ilqg, world
+from oneshot.expert import ilqg
+from oneshot.world import arm, reach
 from oneshot.exercises.checking import Case, Checker, Mistake
 from oneshot.exercises.compare import Out
 
 # ----------------------------------------------------------------------------------------------------
-# 1. The success criterion: world.is_success
+# 1. The success criterion: reach.is_success
 # ----------------------------------------------------------------------------------------------------
 
 
@@ -54,7 +55,7 @@ def _judge(window, squared=False, mean=False, strict=False, fixed=None):
 
 _fifth = lambda e: e[-max(1, len(e) // 5):]
 SUCCESS = Checker(
-    expected=world.is_success, cases=_success_cases, out=Out("bool", "your answer"),
+    expected=reach.is_success, cases=_success_cases, out=Out("bool", "your answer"),
     mistakes=(
         Mistake("you judge the whole episode: success is judged on its final fifth only (the last {w} of "
                 "{T} steps), so passing the target early and leaving does not count", _judge(lambda e: e)),

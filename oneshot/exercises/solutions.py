@@ -5,7 +5,7 @@ import autograd.numpy as anp
 import numpy as np
 from autograd import grad
 
-from oneshot.network import forward
+from oneshot.policy.network import forward
 
 
 def is_success(end_effector, target, success_radius=0.05):                                   # 1

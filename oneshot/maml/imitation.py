@@ -12,10 +12,10 @@ import autograd.numpy as anp
 import numpy as np
 from tqdm import tqdm
 
-from oneshot import maml
-from oneshot.data import world_config
-from oneshot.network import forward, images_to_float
-from oneshot.world import ReachWorld, closest_object, is_success, observation_state
+from oneshot.maml import inner
+from oneshot.data.datasets import world_config
+from oneshot.policy.network import forward, images_to_float
+from oneshot.world.reach import ReachWorld, closest_object, is_success, observation_state
 
 # joint angles (rad), joint velocities (rad/s), end effector (m) -> order one
 STATE_SCALE = np.array([np.pi, np.pi, 10.0, 10.0, 0.2, 0.2], np.float32)
@@ -66,8 +66,8 @@ class PolicyDiverged(ValueError):
 
 def adapt(params, demo, alpha=0.001, steps=3, only=None):
     """One-shot adaptation (eq. 1) to a single demo (images, states, actions) in network units.
-    only: None (adapt every parameter) or key prefixes of the parameters that adapt (maml.inner_update)."""
-    return maml.inner_update(params, demo, imitation_loss, alpha, steps, only=only)
+    only: None (adapt every parameter) or key prefixes of the parameters that adapt (inner.inner_update)."""
+    return inner.inner_update(params, demo, imitation_loss, alpha, steps, only=only)
 
 
 def act(policy, obs, max_torque, scene=None):

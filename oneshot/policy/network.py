@@ -11,7 +11,7 @@ Everything here is a pure function of an explicit parameter dict, so MAML (Secti
 differentiate the imitation loss through it twice. Two versions of the same network:
 
     forward_reference   plain `autograd.numpy`, to read: a convolution is 9 shifted slices and an einsum
-    forward             the same numbers on the fast path: the layers of `oneshot.layers`, autograd
+    forward             the same numbers on the fast path: the layers of `oneshot.policy.layers`, autograd
                         primitives that keep the graph of a second-order meta-gradient small
 
 The tests prove the two equal, values and gradients. Everything runs in the dtype of the parameters:
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import autograd.numpy as anp
 import numpy as np
 
-from oneshot.layers import add_bias, concat_last, conv2d, conv_output_size, matmul, per_frame, relu, spatial_soft_argmax
+from oneshot.policy.layers import add_bias, concat_last, conv2d, conv_output_size, matmul, per_frame, relu, spatial_soft_argmax
 
 STRIDE = 2   # every convolution halves the image side (MIL: stride 2)
 
@@ -44,7 +44,7 @@ class NetworkConfig:
                     spatial soft-argmax (`spatial_soft_argmax`), 2 per channel, instead of being
                     flattened (an option of MIL's released code; the default profile uses it).
     image_channels: channels of the input image: 3 (RGB), or 6 for the contextual baseline, which
-                    stacks the demonstration's final image on the current one (`oneshot.baselines`).
+                    stacks the demonstration's final image on the current one (`oneshot.methods.baselines`).
     """
 
     image_size: int = 32
@@ -182,7 +182,7 @@ def predict_tasks(params, images, states):
     images: (B, T, H, W, 3) float in [0, 1];  states: (B, T, state_dim) float.
     Returns actions: (B, T, action_dim). Same numbers as calling `predict` once per task, but autograd
     records one graph instead of B, which is what makes MAML's batched meta-objective fast
-    (`oneshot.batched`; docs/results.md).
+    (`oneshot.maml.batched`; docs/results.md).
     """
     images, states = _check_inputs(params, images, states, task_axes=1)
     return forward(params, images, states)
@@ -190,7 +190,7 @@ def predict_tasks(params, images, states):
 
 def forward(params, images, states):
     """The network on the fast path, without input checks (the hot path of `predict` and
-    `predict_tasks`): the same numbers as `forward_reference`, built from `oneshot.layers`.
+    `predict_tasks`): the same numbers as `forward_reference`, built from `oneshot.policy.layers`.
 
     images: (..., T, H, W, 3) float in [0, 1], states: (..., T, state_dim) -> (..., T, action_dim)
     in network units, where the optional leading task axis matches that of any per-task parameter.
@@ -235,7 +235,7 @@ def _check_inputs(params, images, states, task_axes):
     if images.dtype == np.uint8:
         raise ValueError(
             f"images must be {want} float in [0, 1]; got uint8 {images.shape}. Convert once with "
-            f"oneshot.network.images_to_float(images) before training or rollouts."
+            f"oneshot.policy.network.images_to_float(images) before training or rollouts."
         )
     if images.ndim != 4 + task_axes or images.shape[-1] != c_img or not np.issubdtype(images.dtype, np.floating):
         raise ValueError(f"images must be {want} float in [0, 1]; got {images.shape} {images.dtype}")

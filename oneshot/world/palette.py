@@ -24,7 +24,7 @@ Minimum distances, RGB 0-255, Euclidean, over every pair (`tests/test_palette.py
 
 The small margins are all at the dull corner (saturation 0.5, value 0.6: chroma 0.3), where 5 degrees
 of hue moves one channel by about 6 units. The centre pixel of a disc keeps its exact colour at 32x32
-(`oneshot.render` antialiases only the rim), so even these are visible to the network. Other levels buy
+(`oneshot.world.render` antialiases only the rim), so even these are visible to the network. Other levels buy
 little: values (1.0, 0.85, 0.7) raise the held-out margin to 14, saturations (1.0, 0.8, 0.55) with
 those values to 16 (and the training minimum to 8), so the grid keeps its evenly spaced levels.
 

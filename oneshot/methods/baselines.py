@@ -2,7 +2,7 @@
 
 All are trained on the same demonstrations with the same behavioural-cloning loss (eq. 2), the same
 meta-batches of (adapt, evaluate) demo pairs, the same convolutional trunk and fully connected widths
-as MIL's policy (`oneshot.network`). What differs is how the ONE demonstration of a new task enters:
+as MIL's policy (`oneshot.policy.network`). What differs is how the ONE demonstration of a new task enters:
 
     contextual  the demonstration's final image, stacked on the current image as 3 more input
                 channels (the paper says "the final image of the demonstration" is the input; how it
@@ -22,9 +22,9 @@ evaluate = other demonstrations of the same tasks that it is scored on, as in me
 import autograd.numpy as anp
 import numpy as np
 
-from oneshot import imitation
-from oneshot.layers import add_bias, concat_last, matmul
-from oneshot.network import NetworkConfig, forward, head, init_params, trunk
+from oneshot.maml import imitation
+from oneshot.policy.layers import add_bias, concat_last, matmul
+from oneshot.policy.network import NetworkConfig, forward, head, init_params, trunk
 
 
 # ----------------------------------------------------------------------------------------------------

@@ -1,6 +1,6 @@
 """MAML for a whole meta-batch in one computation graph: the training path of Section II.
 
-`oneshot.maml` is the plain path (one task at a time, in autograd's own terms). This module computes
+`oneshot.maml.inner` is the plain path (one task at a time, in autograd's own terms). This module computes
 the same meta-objective and meta-gradient faster, three ways, each measured (docs/results.md) and each
 tested equal to the plain path:
 
@@ -12,10 +12,10 @@ tested equal to the plain path:
 import autograd.numpy as np
 from autograd.core import VJPNode, add_outgrads, vspace
 from autograd.extend import defvjp, primitive
-from autograd.tracer import getval, isbox, new_box, trace_stack
+from autograd.tracer import isbox, new_box, trace_stack
 from autograd.util import toposort
 
-from oneshot.maml import check_step, constant, split
+from oneshot.maml.inner import check_step, constant, split
 
 
 @primitive
@@ -99,7 +99,7 @@ def meta_objective_batched(params, adapt, evaluate, loss_tasks, alpha, steps, fi
     only: as in `maml.inner_update`; parameters that do not adapt stay shared (no task axis).
     reduce: None, or a differentiable function applied to every inner gradient (B, ...) before eq. (1):
         when several processes each hold some of the demos' frames, the sum over processes of their
-        parts (`oneshot.shards`), since eq. (2) sums over frames.
+        parts (`oneshot.maml.shards`), since eq. (2) sums over frames.
     Returns the mean over tasks of the post-adaptation loss, like `maml.meta_objective`.
     """
     alpha = check_step(alpha, steps)

@@ -41,14 +41,14 @@ class TrainConfig:
     eval_trials: int = 5                     # trials per held-out colour in those evaluations (60 in all)
     checkpoint_every: int = 100
     shards: int = 2                          # processes sharing each meta-gradient, each on its block of
-                                             # every demo's frames (`oneshot.shards`; results depend on it)
+                                             # every demo's frames (`oneshot.maml.shards`; results depend on it)
     method: str = "mil"                      # "mil" (MAML, eq. 1) or a baseline of Section IV: "contextual",
-                                             # "lstm", "random" (`oneshot.methods`, `oneshot.baselines`)
+                                             # "lstm", "random" (`oneshot.methods.registry`, `oneshot.methods.baselines`)
     lstm_units: int = 100                    # the LSTM baseline's width (the paper's: 512)
     random_stds: tuple = (0.1, 0.25, 0.5, 1.0, 2.0)   # the random baseline's torque std, in units of the
                                              # torque bound (1.0 = the bound); the best on the
                                              # meta-training colours is kept
-    palette: str = "hues"                    # colours when collecting: "hues" (48) or "grid" (`oneshot.palette`)
+    palette: str = "hues"                    # colours when collecting: "hues" (48) or "grid" (`oneshot.world.palette`)
     tasks: int = 0                           # meta-train on the first `tasks` colours of train_data (0: all)
     demos: int = 0                           # ... and the first `demos` demos of each (0: all)
 

@@ -15,7 +15,7 @@ import os
 import sys
 import tempfile
 
-BAD_INPUT = (ValueError, FileNotFoundError, FileExistsError)   # oneshot.data.DatasetError is a ValueError
+BAD_INPUT = (ValueError, FileNotFoundError, FileExistsError)   # oneshot.data.datasets.DatasetError is a ValueError
 
 
 class Parser(argparse.ArgumentParser):
@@ -77,7 +77,7 @@ def boolean(text):
 
 
 def writable_file(path):
-    """An argparse type: `path`, if a file can be written there (atomically, as `oneshot.data` does):
+    """An argparse type: `path`, if a file can be written there (atomically, as `oneshot.data.datasets` does):
     it is not a folder, and its folder exists and takes new files, or can be created. Leaves nothing
     on disk, so an unwritable output fails before the work, not after it."""
     if not path:
@@ -130,7 +130,7 @@ def available_memory_bytes():
 
 
 def dataset_bytes(tasks, demos, horizon, image_size, n_objects):
-    """Bytes of a dataset of `oneshot.data`'s layout in memory: tasks x demos x horizon frames of
+    """Bytes of a dataset of `oneshot.data.datasets`'s layout in memory: tasks x demos x horizon frames of
     (image_size, image_size, 3) uint8 images, states (6 float32) and torques (2 float32), and per demo
     its objects' colours (int16) and positions (2 float32), target index (int8) and seed (int64)."""
     per_frame = image_size * image_size * 3 + 6 * 4 + 2 * 4
@@ -161,7 +161,7 @@ def run(main, argv=None, failures=()):
     """Call a command's `main(argv)` and return what it returns, but turn the package's errors into
     one line on stderr and an exit status (no traceback for what a person can fix):
 
-        2    ValueError (oneshot.data.DatasetError among them), FileNotFoundError, FileExistsError:
+        2    ValueError (oneshot.data.datasets.DatasetError among them), FileNotFoundError, FileExistsError:
              bad input; the message says what and how to fix it
         1    the `failures` types (e.g. train.TrainingDiverged, shards.ShardError) and other OSError;
              lines after the first of their message (a worker's traceback) are printed after it

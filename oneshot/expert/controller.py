@@ -1,7 +1,7 @@
 """The expert demonstrator of paper Section IV: iLQG on the analytic arm, executed in Pymunk.
 
-`plan` solves for a torque sequence and feedback gains on the analytic model (`oneshot.arm`,
-`oneshot.ilqg`); `demonstrate` runs that feedback controller, u = u_bar + K (x - x_bar), in the Pymunk
+`plan` solves for a torque sequence and feedback gains on the analytic model (`oneshot.world.arm`,
+`oneshot.expert.ilqg`); `demonstrate` runs that feedback controller, u = u_bar + K (x - x_bar), in the Pymunk
 world, so a recorded demonstration is what the simulator really did, with the images the policy sees.
 
 Torque bounds: iLQG plans in an unbounded control v and the arm receives u = u_max tanh(v / u_max)
@@ -17,9 +17,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from oneshot import arm, ilqg
-from oneshot.ilqg import ILQGConfig
-from oneshot.world import observation_state
+from oneshot.expert import ilqg
+from oneshot.world import arm
+from oneshot.expert.ilqg import ILQGConfig
+from oneshot.world.reach import observation_state
 
 
 @dataclass(frozen=True)
@@ -74,7 +75,7 @@ class ReachCost:
         return running.sum(-1) + c.w_dist_final * d2[..., -1] + c.w_vel_final * qd2[..., -1]
 
     def derivatives(self, x, v):
-        """Gradients and (Gauss-Newton) Hessians, see `oneshot.ilqg` for the shapes."""
+        """Gradients and (Gauss-Newton) Hessians, see `oneshot.expert.ilqg` for the shapes."""
         c = self.cfg
         T1 = x.shape[0]
         w_dist = np.full(T1, c.w_dist)

@@ -10,15 +10,17 @@
     random       nothing (the best of `random_stds` on the           Gaussian torques
                  meta-training colours is kept)
 
-All share the trunk and widths of `oneshot.network`, the meta-batches of `imitation.sample_meta_batch`,
+All share the trunk and widths of `oneshot.policy.network`, the meta-batches of `imitation.sample_meta_batch`,
 Adam, clipping, checkpoints and the evaluation protocol.
 """
 import dataclasses
 
 import numpy as np
 
-from oneshot import baselines, batched, imitation, maml, network, shards
-from oneshot.config import METHODS, inner_only
+from oneshot.maml import batched, imitation, inner, shards
+from oneshot.methods import baselines
+from oneshot.policy import network
+from oneshot.training.config import METHODS, inner_only
 
 
 def check(cfg):
@@ -49,7 +51,7 @@ def init_params(cfg, net_cfg, rng):
         return baselines.lstm_init_params(net_cfg, cfg.lstm_units, rng)
     params = network.init_params(net_cfg, rng)
     if cfg.method == "mil" and cfg.learn_alpha:
-        params.update(maml.init_step_sizes(params, cfg.alpha, inner_only(cfg)))
+        params.update(inner.init_step_sizes(params, cfg.alpha, inner_only(cfg)))
     return params
 
 

@@ -3,7 +3,7 @@
 A frame is what the policy sees, (H, W, 3) uint8 (32x32 by default). Pictures show it `scale` times
 larger, each pixel a block, and can mark the target disc in every frame with a dashed white ring:
 white is no disc's colour (the palette's colours are all saturated), and the dashes tell the ring from
-the white arm. Target positions are in frame pixels, as `oneshot.render.world_to_pixels` gives them.
+the white arm. Target positions are in frame pixels, as `oneshot.world.render.world_to_pixels` gives them.
 Every function here takes arrays and returns new PIL images; only the `save_*` functions write files.
 """
 import os
@@ -11,7 +11,7 @@ import os
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from oneshot.data import atomic_write
+from oneshot.data.datasets import atomic_write
 
 BACKGROUND = (40, 40, 40)      # between tiles and behind text
 TEXT = (235, 235, 235)

@@ -1,7 +1,7 @@
 """The analytic model of the planar 2-link arm, with its derivatives (paper Section IV).
 
-The same arm is simulated by Pymunk in `oneshot.world`; this module is the model the iLQG expert
-plans on (`oneshot.ilqg`, `oneshot.expert`). It uses the masses and the moments of inertia that
+The same arm is simulated by Pymunk in `oneshot.world.reach`; this module is the model the iLQG expert
+plans on (`oneshot.expert.ilqg`, `oneshot.expert.controller`). It uses the masses and the moments of inertia that
 Pymunk computes for the links, and integrates with the same semi-implicit Euler substeps Pymunk
 uses (positions first, then velocities; Chipmunk's order), so the two agree closely (tested in `tests/test_arm.py`).
 

@@ -1,16 +1,16 @@
 """The reaching world as a Gymnasium environment, `oneshot/Reach-v0` (optional extra: pip install ".[gym]").
 
-`oneshot.world.ReachWorld` already follows Gymnasium's API; this module makes it a real
+`oneshot.world.reach.ReachWorld` already follows Gymnasium's API; this module makes it a real
 `gymnasium.Env`, with spaces, Gymnasium's seeding (`np_random`), `render_mode` and registration, so
 RL libraries and Gymnasium's tools (`check_env`, `gymnasium.make`, wrappers) accept it:
 
     import gymnasium
-    import oneshot.gym                       # registers oneshot/Reach-v0
+    import oneshot.world.gym                       # registers oneshot/Reach-v0
     env = gymnasium.make("oneshot/Reach-v0", target_colour=5, render_mode="rgb_array")
     obs, info = env.reset(seed=0)
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
 
-`gymnasium.make("oneshot.gym:oneshot/Reach-v0")` imports the module itself.
+`gymnasium.make("oneshot.world.gym:oneshot/Reach-v0")` imports the module itself.
 
 Observation: a dict, exactly the world's: "image" (H, W, 3) uint8, "joint_angles" (2,) rad,
 "joint_velocities" (2,) rad/s, "end_effector" (2,) m, all float64 but the image.
@@ -24,12 +24,12 @@ try:
     import gymnasium
     from gymnasium import spaces
 except ImportError as error:
-    raise ImportError('oneshot.gym needs Gymnasium; install the extra: pip install ".[gym]"') from error
+    raise ImportError('oneshot.world.gym needs Gymnasium; install the extra: pip install ".[gym]"') from error
 import numpy as np
 
-from oneshot import palette
-from oneshot.palette import PaletteConfig
-from oneshot.world import ReachWorld, WorldConfig
+from oneshot.world import palette
+from oneshot.world.palette import PaletteConfig
+from oneshot.world.reach import ReachWorld, WorldConfig
 
 ENV_ID = "oneshot/Reach-v0"
 OPTIONS = ("target_colour", "scene")
@@ -62,7 +62,7 @@ class ReachEnv(gymnasium.Env):
     """Reach the disc of one colour among distractors with a planar 2-link arm (paper Section IV).
 
     split: which colours scenes are drawn from, "train" or "heldout"; palette_mode: "hues" (48
-    colours) or "grid" (648; `oneshot.palette`); image_size: H = W in pixels; horizon: T, steps per
+    colours) or "grid" (648; `oneshot.world.palette`); image_size: H = W in pixels; horizon: T, steps per
     episode; target_colour: a palette index of the split that every episode uses, or None for a
     random colour per episode; render_mode: None or "rgb_array".
     """
@@ -94,7 +94,7 @@ class ReachEnv(gymnasium.Env):
 
     def reset(self, *, seed=None, options=None):
         """Start an episode in a new scene. options: {"target_colour": palette index} (this episode's
-        task, overriding the constructor's) or {"scene": oneshot.world.Scene}. Returns (obs, info).
+        task, overriding the constructor's) or {"scene": oneshot.world.reach.Scene}. Returns (obs, info).
 
         The world's seed is drawn from `self.np_random`, so seeding follows Gymnasium: reset(seed=s)
         gives the same scene every time, and later resets without a seed continue that stream.
@@ -144,4 +144,4 @@ class ReachEnv(gymnasium.Env):
 
 # The env truncates itself after `horizon` steps, so no TimeLimit wrapper (max_episode_steps).
 if ENV_ID not in gymnasium.registry:
-    gymnasium.register(id=ENV_ID, entry_point="oneshot.gym:ReachEnv")
+    gymnasium.register(id=ENV_ID, entry_point="oneshot.world.gym:ReachEnv")

@@ -1,6 +1,6 @@
 """The reaching world of paper Section IV: a planar 2-link arm in Pymunk, coloured discs, Pillow images.
 
-A *task* is a target colour (`oneshot.palette`). A *scene* places one target and distractors, each a
+A *task* is a target colour (`oneshot.world.palette`). A *scene* places one target and distractors, each a
 coloured disc, where the arm can reach them; positions change from scene to scene within a task.
 The API follows Gymnasium, which RL users know:
 
@@ -24,17 +24,17 @@ from dataclasses import dataclass, field
 import numpy as np
 import pymunk
 
-from oneshot import palette, render
-from oneshot.arm import ArmConfig
-from oneshot.palette import PaletteConfig
+from oneshot.world import palette, render
+from oneshot.world.arm import ArmConfig
+from oneshot.world.palette import PaletteConfig
 
 
 @dataclass(frozen=True)
 class WorldConfig:
     """Everything a scene and an episode depend on: the arm, the colours, the arena, the task's
     horizon and success radius (Section IV). Lengths in metres, angles in radians."""
-    arm: ArmConfig = field(default_factory=ArmConfig)          # the arm's physics (oneshot.arm)
-    palette: PaletteConfig = field(default_factory=PaletteConfig)   # colours, so tasks (oneshot.palette)
+    arm: ArmConfig = field(default_factory=ArmConfig)          # the arm's physics (oneshot.world.arm)
+    palette: PaletteConfig = field(default_factory=PaletteConfig)   # colours, so tasks (oneshot.world.palette)
     split: str = "train"              # which colours scenes are drawn from: "train" or "heldout"
     horizon: int = 20                 # T, control steps per episode
     image_size: int = 32              # 32 by default; 64 also works
@@ -203,7 +203,7 @@ class ReachWorld:
 
     @property
     def state(self):
-        """Arm state x = (q1, q2, qd1, qd2), as in `oneshot.arm`."""
+        """Arm state x = (q1, q2, qd1, qd2), as in `oneshot.world.arm`."""
         return np.concatenate([self.joint_angles, self.joint_velocities])
 
     def joints(self):

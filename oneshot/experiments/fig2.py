@@ -23,30 +23,26 @@ A sweep takes any `concurrent.futures.Executor` (a process pool by default; a th
 `Client.get_executor()`), so the function that performs one run, `run_fn(spec, run_dir, context)`, must
 be a module-level function (it is pickled) and write only inside its `run_dir`.
 """
-import argparse
-import contextlib
 import dataclasses
 import json
 import os
-import shlex
 import sys
 import time
 from dataclasses import dataclass
 
-from oneshot import checkpoint, collect, data, host, imitation, methods, train
-from oneshot.config import PROFILES as PROFILES_TRAIN
-from oneshot.expert import ExpertConfig
-from oneshot.palette import PaletteConfig
-from oneshot.sweep import PLOTS, RunSpec, read_rows, SweepLocked, plot, summarise, sweep, write_summary
-from oneshot.world import WorldConfig
+from oneshot.data import collection, datasets
+from oneshot.maml import imitation
+from oneshot.methods import registry
+from oneshot.tools import host
+from oneshot.training import checkpoint, run_folder
+from oneshot.training.config import PROFILES as PROFILES_TRAIN
+from oneshot.expert.controller import ExpertConfig
+from oneshot.world.palette import PaletteConfig
+from oneshot.experiments.sweep import RunSpec, read_rows
+from oneshot.world.reach import WorldConfig
 
-# Optional extras: the sweep runs without them and says which one a flag or the plot needs.
-try:
-    import distributed                         # pip install ".[cluster]": --scheduler, --local-cluster
-except ImportError:
-    distributed = None
 
-RESULTS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "results")   # the committed results
+RESULTS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "results")  # FIXME
 
 
 def load_results(profile, results=RESULTS):
@@ -62,7 +58,7 @@ def _default(**changes):
 
 # The methods, as training configurations. All share the default profile's recipe (feature points, bias
 # transformation, Adam 3e-3, clipping, moving average 0.999, meta-batch 5); they differ in how one
-# demonstration enters (`oneshot.methods`).
+# demonstration enters (`oneshot.methods.registry`).
 #   mil        the default profile: one inner step of 0.3 on the first convolution
 #   mil-paper  every parameter adapts (the paper's inner loop), one step of 0.25: MIL's released code
 #              scores eq. (2) as mean((100 (u - u_hat))^2), 10^4 times the mean squared error, with a
@@ -106,7 +102,7 @@ class SweepConfig:
     seeds: tuple = (0, 1, 2)
     iterations: int = 10000                # meta-iterations per run: as long as the shipped policy trains
     trials: int = 10                       # trials per held-out colour (10 x 12 colours: 120 trials)
-    palette_mode: str = "grid"             # oneshot.palette.PaletteConfig(mode=...): enough colours for 324
+    palette_mode: str = "grid"             # oneshot.world.palette.PaletteConfig(mode=...): enough colours for 324
     eval_seed: int = 0                     # seed of the held-out trial scenes: the same for every run
     data: tuple = (324, 16)                # (colours, demos) collected once; every size is its first part
     heldout: tuple = (12, 10)              # held-out (colours, demos): each trial adapts on one of the demos
@@ -162,7 +158,7 @@ def ensure_data(cfg, data_dir, workers=None, progress=True):
                                          ("train", "heldout"), (0, 1)):
         if not os.path.exists(path):
             print(f"collecting {path}: {c} {split} colours x {d} demos", file=sys.stderr)
-            data.save(collect.collect(c, d, split, seed, workers, world_cfg, expert_cfg, progress), path)
+            datasets.save(collection.collect(c, d, split, seed, workers, world_cfg, expert_cfg, progress), path)
 
 
 def run_context(cfg, data_dir="data/fig2"):
@@ -201,12 +197,12 @@ def run_one(spec, run_dir, context):
     cfg = run_config(spec, context)
     t0 = time.perf_counter()
     resume = os.path.exists(os.path.join(run_dir, "checkpoint.npz"))
-    train.train(cfg, run_dir, resume=resume, progress=False)
+    run_folder.train(cfg, run_dir, resume=resume, progress=False)
     ckpt = checkpoint.load(os.path.join(run_dir, "checkpoint.npz"))
     t_score = time.perf_counter()
-    heldout = data.load(context["heldout_data"])
+    heldout = datasets.load(context["heldout_data"])
     params = checkpoint.policy_params(ckpt)
-    score = lambda adapt: imitation.one_shot_success(methods.conditioner(cfg, params, adapt, context["eval_seed"]),
+    score = lambda adapt: imitation.one_shot_success(registry.conditioner(cfg, params, adapt, context["eval_seed"]),
                                                      heldout, context["trials"], context["eval_seed"], progress=False)
     r = score(True)
     notes = {"per_colour": {str(c): round(rate * context["trials"]) for c, rate in r["per_colour"].items()}}
@@ -219,98 +215,3 @@ def run_one(spec, run_dir, context):
     else:
         spent = ckpt["seconds"] + time.perf_counter() - t_score
     return {"wall_seconds": round(spent, 1), "successes": r["successes"], "trials": r["trials"], **notes}
-
-# --- command line ------------------------------------------------------------------------------------
-
-class _Parser(argparse.ArgumentParser):
-    """argparse, but an argument error is one line on stderr (and exit status 2)."""
-
-    def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
-
-
-def _executor(args, stack):
-    """The executor the flags ask for (None: the sweep's own process pool)."""
-    if args.scheduler or args.local_cluster:
-        cluster = args.scheduler or stack.enter_context(
-            distributed.LocalCluster(n_workers=args.local_cluster, threads_per_worker=1, processes=True))
-        client = stack.enter_context(distributed.Client(cluster))
-        print(f"Dask scheduler {client.scheduler.address}: {len(client.scheduler_info()['workers'])} workers",
-              file=sys.stderr)
-        return client.get_executor(pure=False)
-    return None
-
-
-def main(argv=None):
-    argv = sys.argv[1:] if argv is None else list(argv)
-    p = _Parser(prog="python -m oneshot.experiments", description=__doc__,
-                formatter_class=argparse.RawDescriptionHelpFormatter)
-    commands = p.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
-    f = commands.add_parser("fig2", help="one-shot success vs. meta-training dataset size, per method")
-    f.add_argument("--profile", choices=sorted(PROFILES), default="quick", help="named sweep (default: quick)")
-    f.add_argument("--out", default=None, help="results folder (default: oneshot/results/fig2_<profile>)")
-    f.add_argument("--work", default=os.path.join("runs", "fig2"), help="runs' work folders (default: runs/fig2)")
-    f.add_argument("--data", default="data/fig2", help="datasets folder, given to every run (default: data/fig2)")
-    f.add_argument("--seeds", type=int, nargs="+", default=None, metavar="S",
-                   help="only these of the profile's seeds (default: all of them); their summary and figure "
-                        "are summary_seeds<S>.json and fig2_seeds<S>.png, beside the whole profile's")
-    f.add_argument("--no-progress", action="store_true", help="no progress bar")
-    where = f.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=None, help="runs at a time in a process pool (default 2)")
-    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                       help='run on a running Dask scheduler, e.g. tcp://host:8786 (pip install ".[cluster]")')
-    where.add_argument("--local-cluster", type=int, default=None, metavar="N",
-                       help='start a Dask cluster of N one-thread worker processes here (pip install ".[cluster]")')
-    args = p.parse_args(argv)
-    if args.workers is not None and args.workers < 1:
-        f.error(f"--workers must be >= 1; got {args.workers}")
-    if args.local_cluster is not None and args.local_cluster < 1:
-        f.error(f"--local-cluster must be >= 1; got {args.local_cluster}")
-    if (args.scheduler or args.local_cluster) and distributed is None:
-        f.error(f"{'--scheduler' if args.scheduler else '--local-cluster'} needs Dask: pip install \".[cluster]\"")
-    cfg = PROFILES[args.profile]
-    part, seeds = "", f"{len(cfg.seeds)} seed{'s' * (len(cfg.seeds) > 1)}"
-    if args.seeds is not None:
-        if set(args.seeds) - set(cfg.seeds) or len(set(args.seeds)) != len(args.seeds):
-            f.error(f"--seeds must be distinct seeds of the {cfg.name} profile, {list(cfg.seeds)}; got {args.seeds}")
-        if set(args.seeds) != set(cfg.seeds):  # a part of the figure: its own file names
-            chosen = sorted(args.seeds)
-            part = "_seeds" + "-".join(map(str, chosen))
-            seeds = f"seed{'s' * (len(chosen) > 1)} {', '.join(map(str, chosen))} of {len(cfg.seeds)}"
-        cfg = dataclasses.replace(cfg, seeds=tuple(sorted(args.seeds)))
-    out = args.out or os.path.join(RESULTS, f"fig2_{cfg.name}")
-    work = args.work
-    runs = plan(cfg)
-    ensure_data(cfg, args.data, progress=not args.no_progress)
-    with contextlib.ExitStack() as stack:
-        try:
-            executor = _executor(args, stack)
-        except OSError as e:                   # Client() could not reach the scheduler
-            sys.exit(f"error: no Dask scheduler at {args.scheduler}: {e}")
-        try:
-            rows = sweep(runs, out, work, run_context(cfg, args.data), run_one, executor=executor,
-                         progress=not args.no_progress, workers=args.workers or 2)
-        except SweepLocked as e:
-            sys.exit(f"error: {e}")
-        except KeyboardInterrupt:
-            sys.exit(f"interrupted; the finished runs are in {os.path.join(out, 'runs.csv')}: "
-                     f"run the same command to resume")
-    if len(rows) < len(runs):                  # a summary is of the whole sweep: the notebooks trust it
-        print(f"{len(rows)} of {len(runs)} runs finished ({os.path.join(out, 'runs.csv')}); run the same "
-              f"command again to finish the others: no summary or figure until then")
-        return 1
-    summary = summarise(rows, cfg, "python -m oneshot.experiments " + shlex.join(argv))
-    write_summary(summary, os.path.join(out, f"summary{part}.json"))
-    print(f"{len(rows)} of {len(runs)} runs finished: {os.path.join(out, 'runs.csv')}, "
-          f"{os.path.join(out, f'summary{part}.json')}")
-    if not PLOTS:
-        print('fig2.png not drawn: the plot needs matplotlib (pip install ".[plots]")')
-    elif rows:
-        plot(summary, os.path.join(out, f"fig2{part}.png"), {m: LABELS.get(m, m) for m in METHOD_CONFIGS},
-             title=f"Figure 2 ({cfg.name} profile, {seeds})")
-        print(f"figure: {os.path.join(out, f'fig2{part}.png')}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,7 +1,7 @@
 """The network's layers as autograd primitives: convolution as im2col + matrix product, and the
 matrix products, bias adds, ReLUs and concatenation of the policy (paper Section IV).
 
-`oneshot.network` builds the policy from these. Each is an autograd primitive whose vector-Jacobian
+`oneshot.policy.network` builds the policy from these. Each is an autograd primitive whose vector-Jacobian
 product (VJP) is written with primitives of the same family, so derivatives of every order work (MAML's
 second-order meta-gradient differentiates the network twice) while the recorded graph stays a few
 large nodes per layer: written with autograd.numpy's small operations, one second-order meta-gradient

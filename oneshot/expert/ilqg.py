@@ -1,7 +1,7 @@
 """iLQG (iterative LQR with the robust schedule of Tassa, Erez & Todorov, IROS 2012), in NumPy.
 
-The expert of paper Section IV: it plans on a model (`oneshot.arm`) and returns a time-varying
-feedback controller u_t = u_bar_t + K_t (x_t - x_bar_t) that `oneshot.expert` runs in Pymunk.
+The expert of paper Section IV: it plans on a model (`oneshot.world.arm`) and returns a time-varying
+feedback controller u_t = u_bar_t + K_t (x_t - x_bar_t) that `oneshot.expert.controller` runs in Pymunk.
 
 The problem: minimise  sum_t l(x_t, u_t) + l_f(x_T)  subject to  x_{t+1} = f(x_t, u_t).
 

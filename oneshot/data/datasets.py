@@ -28,10 +28,10 @@ import tempfile
 
 import numpy as np
 
-from oneshot import npz
-from oneshot.arm import ArmConfig
-from oneshot.palette import PaletteConfig
-from oneshot.world import WorldConfig
+from oneshot.data import npz
+from oneshot.world.arm import ArmConfig
+from oneshot.world.palette import PaletteConfig
+from oneshot.world.reach import WorldConfig
 
 FORMAT_VERSION = 1
 

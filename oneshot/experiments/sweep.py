@@ -1,5 +1,5 @@
 """A sweep of independent runs through any `concurrent.futures.Executor`, resumable, with one CSV row
-per finished run, a summary over seeds and a figure (the machinery of `oneshot.experiments`).
+per finished run, a summary over seeds and a figure (the machinery of `oneshot.experiments.fig2`).
 
     rows = sweep(runs, "results/", "work/", context, executor=None, run_fn=run_one)
 
@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 from tqdm import tqdm
 
-from oneshot.data import atomic_write
-from oneshot.evaluate import wilson_interval
+from oneshot.data.datasets import atomic_write
+from oneshot.training.scoring import wilson_interval
 
 try:
     from matplotlib.figure import Figure       # pip install ".[plots]": the figure (no pyplot, no global state)

@@ -3,7 +3,7 @@ the random state, the configs and the world the data was recorded in, in one .np
 written atomically.
 
     ckpt = checkpoint.load("runs/default/checkpoint.npz")
-    checkpoint.check_data(ckpt, data.load(path)["metadata"], "runs/default/checkpoint.npz", path)
+    checkpoint.check_data(ckpt, datasets.load(path)["metadata"], "runs/default/checkpoint.npz", path)
     params = checkpoint.policy_params(ckpt)          # what the policy acts with
 
 Saving then loading gives back the same arrays and random state, so a run resumed from a checkpoint
@@ -14,7 +14,7 @@ names the file and what is wrong with it, never a KeyError three calls deeper or
 parameter. It checks the file as `npz.Reader` does (each array's npy header against its zip member's
 size before reading the data, so a damaged header cannot claim terabytes; the zip's CRCs), a SHA-256
 checksum of the arrays (in checkpoints written since it was added), every field of the metadata, and
-every array's name, shape and dtype against what the stored configs make (`methods.init_params`).
+every array's name, shape and dtype against what the stored configs make (`registry.init_params`).
 `check_data` then says whether a dataset is one the policy can be run on: the same image size,
 horizon, torque bound and palette.
 """
@@ -26,12 +26,15 @@ import os
 
 import numpy as np
 
-from oneshot import data, methods, network, npz, optim
-from oneshot.config import TrainConfig, inner_only
-from oneshot.data import atomic_write
-from oneshot.network import STRIDE, NetworkConfig
-from oneshot.palette import PaletteConfig
-from oneshot.world import WorldConfig
+from oneshot.data import datasets, npz
+from oneshot.maml import optim
+from oneshot.methods import registry
+from oneshot.policy import network
+from oneshot.training.config import TrainConfig, inner_only
+from oneshot.data.datasets import atomic_write
+from oneshot.policy.network import STRIDE, NetworkConfig
+from oneshot.world.palette import PaletteConfig
+from oneshot.world.reach import WorldConfig
 
 FORMAT_VERSION = 1
 FIX = "re-train it, or use another checkpoint"
@@ -77,7 +80,7 @@ def save(path, params, adam_state, iteration, rng, cfg, net_cfg, ema=None, world
         world = dataclasses.asdict(world)
     meta = {"iteration": iteration, "rng": rng.bit_generator.state, "config": dataclasses.asdict(cfg),
             "network": dataclasses.asdict(net_cfg), "world": world,
-            "state_layout": list(data.STATE_LAYOUT), "seconds": seconds,
+            "state_layout": list(datasets.STATE_LAYOUT), "seconds": seconds,
             "checksum": checksum(arrays), "format_version": FORMAT_VERSION}
     with atomic_write(path) as f:
         npz.write(f, {"meta": np.array(json.dumps(meta)), **arrays}, compress=False)
@@ -87,7 +90,7 @@ def load(path):
     """Read and check a checkpoint. Returns {"params", "ema", "adam", "iteration", "rng", "config",
     "network", "world", "state_layout"}: "ema" is the moving average of the parameters, or None if the
     run kept none (cfg.ema = 0); "world" the meta-training data's world (a dict) and "state_layout"
-    the robot state's layout (`data.STATE_LAYOUT` when saved; both None in older checkpoints);
+    the robot state's layout (`datasets.STATE_LAYOUT` when saved; both None in older checkpoints);
     "seconds" the meta-training time up to this checkpoint, resumes included (None in older ones).
     `policy_params(ckpt)` picks the parameters to act with. Raises CheckpointError if anything in the
     file is damaged or inconsistent."""
@@ -123,7 +126,7 @@ def load(path):
     cfg = _config(path, "config", TrainConfig, meta["config"])
     net_cfg = _config(path, "network", NetworkConfig, network_fields)
     try:
-        methods.check(cfg), inner_only(cfg)
+        registry.check(cfg), inner_only(cfg)
     except ValueError as e:
         raise CheckpointError(f"{path!r}: meta 'config': {e}; {FIX}") from e
     world = meta["world"]
@@ -218,7 +221,7 @@ def _kind_of(default):
 
 def _check_arrays(path, arrays, cfg, net_cfg):
     """Raise CheckpointError, naming the first missing, unexpected, or wrongly shaped or typed array,
-    unless `arrays` are exactly the parameters cfg and net_cfg make (`methods.init_params`), their
+    unless `arrays` are exactly the parameters cfg and net_cfg make (`registry.init_params`), their
     moving average (cfg.ema > 0), and Adam's state of them."""
     if cfg.method != "random":
         # The network's own shapes first, which costs nothing: a config claiming a giant network must
@@ -229,7 +232,7 @@ def _check_arrays(path, arrays, cfg, net_cfg):
         raise CheckpointError(f"{path!r}: meta 'config' has lstm_units {cfg.lstm_units} but the network's "
                               f"state_dim is only {net_cfg.state_dim}; {FIX}")
     try:
-        made = methods.init_params(cfg, net_cfg, np.random.default_rng(0))
+        made = registry.init_params(cfg, net_cfg, np.random.default_rng(0))
     except ValueError as e:                            # e.g. a negative alpha to learn (learn_alpha)
         raise CheckpointError(f"{path!r}: meta 'config': {e}; {FIX}") from e
     with_ema = (cfg.ema > 0 and cfg.method != "random") or any(k.startswith("ema/") for k in arrays)
@@ -282,17 +285,17 @@ def world_config(ckpt):
     for older checkpoints, which record only the network's image size, the default world of that size."""
     if ckpt["world"] is None:
         return WorldConfig(image_size=ckpt["network"].image_size)
-    return data.world_config({"world": ckpt["world"]})
+    return datasets.world_config({"world": ckpt["world"]})
 
 
 def check_data(ckpt, metadata, ckpt_path, data_path, palette=True):
-    """Raise CheckpointError unless a dataset (`metadata`: `data.load(data_path)["metadata"]`) is one
+    """Raise CheckpointError unless a dataset (`metadata`: `datasets.load(data_path)["metadata"]`) is one
     the checkpoint's policy can run on: images of the size it was trained on, demos of its horizon, its
     state layout, the same torque bound (the policy's actions are torques divided by it) and, with
     palette=True, the same palette (a task is a palette index: in another palette it is another
     colour). Older checkpoints record no world: then only the image size (the network's) is checked.
     A state layout is compared when both record one (datasets and checkpoints recording none have
-    `data.STATE_LAYOUT`)."""
+    `datasets.STATE_LAYOUT`)."""
     trained = ckpt["world"]
     mine = _world(trained, f"{ckpt_path}: meta 'world'") if trained is not None else \
         {"image_size": ckpt["network"].image_size}

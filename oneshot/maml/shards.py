@@ -31,8 +31,8 @@ import traceback
 import numpy as np
 from autograd.extend import defvjp, primitive
 
-from oneshot import batched, imitation
-from oneshot.host import blas_threads, die_with_parent
+from oneshot.maml import batched, imitation
+from oneshot.tools.host import blas_threads, die_with_parent
 
 TIMEOUT = 600.0   # seconds a process waits for the others at one exchange before giving up
 

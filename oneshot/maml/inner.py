@@ -2,7 +2,7 @@
 Imitation Learning via Meta-Learning" (MIL), which builds on Finn, Abbeel & Levine (2017), "MAML".
 
 This is the plain path, to read: one task at a time, in autograd's own terms. The training loop
-uses `oneshot.batched`, which computes the same numbers for a whole meta-batch in one graph (the
+uses `oneshot.maml.batched`, which computes the same numbers for a whole meta-batch in one graph (the
 tests prove the two equal).
 
 Everything here is generic over the model: parameters are a dict of arrays, and the model enters

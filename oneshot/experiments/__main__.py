@@ -1,0 +1,136 @@
+"""The paper's experiments (Section IV): `python -m oneshot.experiments fig2 --profile quick|paper`.
+
+Figure 2 of the paper: one-shot success on held-out colours versus the size of the meta-training
+dataset, one line per method. A *run* is one method trained on one dataset size (colours x demos per
+colour) with one seed, then scored on the same held-out trials:
+
+    python -m oneshot.experiments fig2 --profile quick                    # 2 runs at a time, this machine
+    python -m oneshot.experiments fig2 --profile paper --workers 4
+    python -m oneshot.experiments fig2 --profile paper --seeds 0          # one seed's figure first
+    python -m oneshot.experiments fig2 --profile paper --local-cluster 4   # Dask, pip install ".[cluster]"
+    python -m oneshot.experiments fig2 --profile paper --scheduler tcp://host:8786
+
+It writes `oneshot/results/fig2_<profile>/` (`RESULTS`, shipped with the package, so that notebook 04 and
+`load_results` find it wherever the package is installed): runs.csv (one row per finished run), summary.json (per method
+and size: the mean over seeds, a 95% Wilson interval on the pooled trials, the range over seeds) and
+fig2.png (pip install ".[plots]"), only once every run of the profile has finished; `--seeds 0` does
+the runs of seed 0 alone and writes summary_seeds0.json and fig2_seeds0.png. Each run works in `runs/fig2/<run id>/` (profiles share the folder:
+the run id names everything a run depends on, so a run two profiles share is done once). Run the same
+command again to resume: finished runs (rows of runs.csv) are skipped, failed or interrupted ones are
+run again, from their own checkpoints.
+
+A sweep takes any `concurrent.futures.Executor` (a process pool by default; a thread pool; Dask's
+`Client.get_executor()`), so the function that performs one run, `run_fn(spec, run_dir, context)`, must
+be a module-level function (it is pickled) and write only inside its `run_dir`.
+"""
+import argparse
+import contextlib
+import dataclasses
+import os
+import shlex
+import sys
+
+from oneshot.experiments.fig2 import LABELS, METHOD_CONFIGS, PROFILES, RESULTS, ensure_data, plan, run_context, run_one
+from oneshot.experiments.sweep import PLOTS, SweepLocked, plot, summarise, sweep, write_summary
+
+# Optional extras: the sweep runs without them and says which one a flag or the plot needs.
+try:
+    import distributed                         # pip install ".[cluster]": --scheduler, --local-cluster
+except ImportError:
+    distributed = None
+
+
+# --- command line ------------------------------------------------------------------------------------
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but an argument error is one line on stderr (and exit status 2)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def _executor(args, stack):
+    """The executor the flags ask for (None: the sweep's own process pool)."""
+    if args.scheduler or args.local_cluster:
+        cluster = args.scheduler or stack.enter_context(
+            distributed.LocalCluster(n_workers=args.local_cluster, threads_per_worker=1, processes=True))
+        client = stack.enter_context(distributed.Client(cluster))
+        print(f"Dask scheduler {client.scheduler.address}: {len(client.scheduler_info()['workers'])} workers",
+              file=sys.stderr)
+        return client.get_executor(pure=False)
+    return None
+
+
+def main(argv=None):
+    argv = sys.argv[1:] if argv is None else list(argv)
+    p = _Parser(prog="python -m oneshot.experiments", description=__doc__,
+                formatter_class=argparse.RawDescriptionHelpFormatter)
+    commands = p.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
+    f = commands.add_parser("fig2", help="one-shot success vs. meta-training dataset size, per method")
+    f.add_argument("--profile", choices=sorted(PROFILES), default="quick", help="named sweep (default: quick)")
+    f.add_argument("--out", default=None, help="results folder (default: oneshot/results/fig2_<profile>)")
+    f.add_argument("--work", default=os.path.join("runs", "fig2"), help="runs' work folders (default: runs/fig2)")
+    f.add_argument("--data", default="data/fig2", help="datasets folder, given to every run (default: data/fig2)")
+    f.add_argument("--seeds", type=int, nargs="+", default=None, metavar="S",
+                   help="only these of the profile's seeds (default: all of them); their summary and figure "
+                        "are summary_seeds<S>.json and fig2_seeds<S>.png, beside the whole profile's")
+    f.add_argument("--no-progress", action="store_true", help="no progress bar")
+    where = f.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, help="runs at a time in a process pool (default 2)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help='run on a running Dask scheduler, e.g. tcp://host:8786 (pip install ".[cluster]")')
+    where.add_argument("--local-cluster", type=int, default=None, metavar="N",
+                       help='start a Dask cluster of N one-thread worker processes here (pip install ".[cluster]")')
+    args = p.parse_args(argv)
+    if args.workers is not None and args.workers < 1:
+        f.error(f"--workers must be >= 1; got {args.workers}")
+    if args.local_cluster is not None and args.local_cluster < 1:
+        f.error(f"--local-cluster must be >= 1; got {args.local_cluster}")
+    if (args.scheduler or args.local_cluster) and distributed is None:
+        f.error(f"{'--scheduler' if args.scheduler else '--local-cluster'} needs Dask: pip install \".[cluster]\"")
+    cfg = PROFILES[args.profile]
+    part, seeds = "", f"{len(cfg.seeds)} seed{'s' * (len(cfg.seeds) > 1)}"
+    if args.seeds is not None:
+        if set(args.seeds) - set(cfg.seeds) or len(set(args.seeds)) != len(args.seeds):
+            f.error(f"--seeds must be distinct seeds of the {cfg.name} profile, {list(cfg.seeds)}; got {args.seeds}")
+        if set(args.seeds) != set(cfg.seeds):  # a part of the figure: its own file names
+            chosen = sorted(args.seeds)
+            part = "_seeds" + "-".join(map(str, chosen))
+            seeds = f"seed{'s' * (len(chosen) > 1)} {', '.join(map(str, chosen))} of {len(cfg.seeds)}"
+        cfg = dataclasses.replace(cfg, seeds=tuple(sorted(args.seeds)))
+    out = args.out or os.path.join(RESULTS, f"fig2_{cfg.name}")
+    work = args.work
+    runs = plan(cfg)
+    ensure_data(cfg, args.data, progress=not args.no_progress)
+    with contextlib.ExitStack() as stack:
+        try:
+            executor = _executor(args, stack)
+        except OSError as e:                   # Client() could not reach the scheduler
+            sys.exit(f"error: no Dask scheduler at {args.scheduler}: {e}")
+        try:
+            rows = sweep(runs, out, work, run_context(cfg, args.data), run_one, executor=executor,
+                         progress=not args.no_progress, workers=args.workers or 2)
+        except SweepLocked as e:
+            sys.exit(f"error: {e}")
+        except KeyboardInterrupt:
+            sys.exit(f"interrupted; the finished runs are in {os.path.join(out, 'runs.csv')}: "
+                     f"run the same command to resume")
+    if len(rows) < len(runs):                  # a summary is of the whole sweep: the notebooks trust it
+        print(f"{len(rows)} of {len(runs)} runs finished ({os.path.join(out, 'runs.csv')}); run the same "
+              f"command again to finish the others: no summary or figure until then")
+        return 1
+    summary = summarise(rows, cfg, "python -m oneshot.experiments " + shlex.join(argv))
+    write_summary(summary, os.path.join(out, f"summary{part}.json"))
+    print(f"{len(rows)} of {len(runs)} runs finished: {os.path.join(out, 'runs.csv')}, "
+          f"{os.path.join(out, f'summary{part}.json')}")
+    if not PLOTS:
+        print('fig2.png not drawn: the plot needs matplotlib (pip install ".[plots]")')
+    elif rows:
+        plot(summary, os.path.join(out, f"fig2{part}.png"), {m: LABELS.get(m, m) for m in METHOD_CONFIGS},
+             title=f"Figure 2 ({cfg.name} profile, {seeds})")
+        print(f"figure: {os.path.join(out, f'fig2{part}.png')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""The methods of paper Section IV's comparison."""

@@ -1,0 +1,1 @@
+"""What the commands share: argument checks and one-line errors (cli), the machine (host), pictures (viz)."""
