@@ -25,12 +25,13 @@ from tqdm import tqdm
 
 from oneshot.data import collection, datasets
 from oneshot.expert import controller
-from oneshot.maml import batched, imitation, optim, shards
-from oneshot.methods import registry
+from oneshot.maml import inner, imitation, optim, shards
+from oneshot import methods
 from oneshot.policy import layers, network
 from oneshot.tools import cli, host
 from oneshot.world import palette
-from oneshot.training.config import INNER_PARAMS, METHODS, PROFILES, inner_only
+from oneshot.methods.mil import INNER_PARAMS
+from oneshot.training.config import PROFILES
 from oneshot.training.scoring import wilson_interval
 from oneshot.world.reach import ReachWorld, WorldConfig
 
@@ -48,54 +49,38 @@ def synthetic_demos(rng, tasks, T, image_size):
             rng.standard_normal((tasks, T, 2), dtype=np.float32))
 
 
-def meta_gradient_flops(cfg, net_cfg, T, tasks):
-    """Estimated floating-point operations of the meta-gradient over `tasks` tasks of T frames.
-
-    3 (3 s + 1) forward passes per task for s inner steps: each inner step records a forward and a
-    backward pass (~3 forward passes), the outer loss one more, and the meta-gradient's backward pass
-    costs about twice the recorded forward graph. First order: the inner steps are not recorded, so
-    3 s + 3 (inner forward+backward, outer forward+backward). The baselines: one forward and backward
-    pass (3) on the evaluate demo, the LSTM's trunk the same again on the adapt demo. Matrix products
-    only (`count_flops`; the LSTM's own products are not counted).
-    """
-    if cfg.method == "mil":
-        passes = 3 * cfg.inner_steps + 3 if cfg.first_order else 3 * (3 * cfg.inner_steps + 1)
-    else:
-        passes = {"contextual": 3, "lstm": 6}[cfg.method]
-    return tasks * passes * network.count_flops(net_cfg, T)
-
-
 def bench_setup(profile, image_size, **overrides):
-    """(cfg, net_cfg, params, rng) for timing a profile (with overridden fields) on synthetic data."""
-    cfg = dataclasses.replace(PROFILES[profile], **overrides)
+    """(method, net_cfg, params, rng) for timing a profile (with overridden fields) on synthetic data."""
+    method = methods.of(dataclasses.replace(PROFILES[profile], **overrides))
     rng = np.random.default_rng(0)
-    net_cfg = registry.network_config(cfg, image_size)
-    return cfg, net_cfg, registry.init_params(cfg, net_cfg, rng), rng
+    net_cfg = method.network_config(image_size)
+    return method, net_cfg, method.init_params(net_cfg, rng), rng
 
 
 def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, **overrides):
     """Median seconds per meta-iteration (the gradient of one meta-batch: for mil second order, over
     cfg.shards processes) on synthetic data, and GFLOP/s (`meta_gradient_flops`)."""
     host.tune_malloc()
-    cfg, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
-    if cfg.method == "random":
-        raise ValueError("the random policy has no meta-iteration to time")
+    method, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
+    cfg = method.cfg
+    if not method.learns:
+        raise ValueError(f"the {cfg.method} policy has no meta-iteration to time")
     B = cfg.meta_batch
-    times, pool = [], shards.make_pool(cfg.shards if cfg.method == "mil" else 1)
+    times, pool = [], method.make_pool()
     try:
         for _ in range(iterations + 2):
             a, e = synthetic_demos(rng, B, T, image_size), synthetic_demos(rng, B, T, image_size)
             t = time.perf_counter()
-            registry.meta_gradient(cfg, params, a, e, pool)
+            method.meta_gradient(params, a, e, pool)
             times.append(time.perf_counter() - t)
     finally:
         if pool is not None:
             pool.close()
     s = float(np.median(times[2:]))
-    flops = meta_gradient_flops(cfg, net_cfg, T, B)
+    flops = method.meta_gradient_flops(net_cfg, T, B)
     return {"profile": profile, "method": cfg.method, "meta_batch": B, "inner_steps": cfg.inner_steps,
             "inner_params": cfg.inner_params, "T": T, "image_size": image_size, "first_order": cfg.first_order,
-            "shards": cfg.shards if cfg.method == "mil" else 1,
+            "shards": method.shards,
             "seconds_per_iteration": round(s, 4),
             "gflop_per_iteration": round(flops / 1e9, 2), "gflop_per_second": round(flops / 1e9 / s, 1)}
 
@@ -201,20 +186,21 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **ove
     """
     host.tune_malloc()
     host.blas_threads(1)
-    cfg, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
-    if cfg.method != "mil":
+    method, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
+    cfg = method.cfg
+    if not method.adapts:
         raise ValueError("--breakdown times MIL's meta-gradient on frame shards; drop --method")
     batch = [synthetic_demos(rng, cfg.meta_batch, T, image_size) for _ in range(2)]
     adapt, evaluate = (shards.split_frames(demos, cfg.shards)[-1] for demos in batch)  # the training process's part
     B, frames = adapt[0].shape[:2]
-    settings = (cfg.alpha, cfg.inner_steps, cfg.first_order, inner_only(cfg))
+    settings = (imitation.imitation_loss, method.inner)
 
     def compute():
         return shards.part(params, adapt, evaluate, settings)
 
     groups = {"matrix_products": ("matmul", "matmul_dx", "matmul_dw"), "im2col_col2im": ("im2col", "col2im")}
     keys = {}                                             # cProfile's key of each primitive -> its group
-    for module in (layers, batched):
+    for module in (layers, inner):
         for name, f in vars(module).items():
             if getattr(f, "_is_autograd_primitive", False):
                 code = f.fun.__code__
@@ -238,7 +224,7 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **ove
         parts.append(part)
     ms = {k: float(np.median([p[k] for p in parts])) for k in parts[0]}
     wall = 1e3 * float(np.median(times))
-    flops = meta_gradient_flops(cfg, net_cfg, frames, B)
+    flops = method.meta_gradient_flops(net_cfg, frames, B)
     result = {"profile": profile, "tasks": int(B), "frames": int(frames), "inner_steps": cfg.inner_steps,
               "inner_params": cfg.inner_params, "first_order": cfg.first_order, "part_ms": round(wall, 1)}
     result.update({k + "_ms": round(v, 1) for k, v in ms.items()})
@@ -273,7 +259,7 @@ def main(argv=None):
     m = sub.add_parser("maml", help="seconds per second-order meta-iteration")
     m.add_argument("--iterations", type=cli.positive_int, default=20)
     m.add_argument("--profile", choices=sorted(PROFILES), default="default")
-    m.add_argument("--method", choices=METHODS[:3], default=None,
+    m.add_argument("--method", choices=[n for n in methods.NAMES if methods.REGISTRY[n].learns], default=None,
                    help="time a baseline's iteration (same meta-batch, trunk and widths) instead of MIL's")
     m.add_argument("--lstm-units", type=cli.positive_int, default=None, help="override the LSTM baseline's width")
     m.add_argument("--first-order", action="store_true", help="time the first-order approximation")

@@ -23,12 +23,12 @@ import os
 
 import numpy as np
 
+from oneshot import methods
 from oneshot.expert import controller
 from oneshot.maml import imitation
 from oneshot.tools import cli, viz
 from oneshot.training import checkpoint
 from oneshot.world import palette, render
-from oneshot.training.config import inner_only
 from oneshot.training.scoring import wilson_interval
 from oneshot.world.reach import ReachWorld, WorldConfig, closest_object
 
@@ -153,6 +153,10 @@ def main(argv=None):
                             os.path.join(args.out, "expert_demos.png"))
         return None
     params, cfg = checkpoint.policy_params(ckpt), ckpt["config"]
+    method = methods.of(cfg)
+    if not method.adapts:
+        raise ValueError(f"the demo shows a policy adapting to one demonstration (eq. 1); {args.checkpoint} holds "
+                         f"a {cfg.method!r} policy, which does not adapt: score it with python -m oneshot.evaluate")
     max_torque = world.config.arm.max_torque
 
     # 2-3. Adapt on the one demo, act in new scenes; the unadapted policy for contrast.
@@ -164,7 +168,7 @@ def main(argv=None):
     trials = {}                                            # (colour's position i, trial j) -> (adapted, unadapted)
     for i, (colour, d) in enumerate(demos.items()):
         demo = imitation.prepare_demos(d["images"], d["states"], d["actions"], max_torque)
-        adapted = imitation.adapt(params, demo, cfg.alpha, cfg.inner_steps, inner_only(cfg))
+        adapted = method.conditioner(params)(demo)
         for j in range(args.trials):
             seed = imitation.trial_seed(args.seed, i, j)       # trial scenes, seeded as in `oneshot.training.scoring`
             trials[i, j] = (imitation.rollout(adapted, world, seed, colour),

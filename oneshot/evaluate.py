@@ -10,12 +10,11 @@ import dataclasses
 import json
 import os
 from oneshot.data import datasets
-from oneshot.maml import imitation, inner
-from oneshot.methods import registry
+from oneshot.maml import imitation
+from oneshot import methods
 from oneshot.tools import cli
 from oneshot.training import checkpoint
 from oneshot.world import palette
-from oneshot.training.config import METHODS, inner_only
 from oneshot.world.palette import PaletteConfig
 from oneshot.training.scoring import adaptation_gain, colour_breakdown, wilson_interval
 
@@ -38,7 +37,7 @@ def main(argv=None):
                    help="meta-test with this inner step size instead of the one the checkpoint was trained with")
     p.add_argument("--inner-steps", type=cli.non_negative_int, default=None,
                    help="meta-test with this many inner steps instead of the trained number")
-    p.add_argument("--method", choices=METHODS, default=None,
+    p.add_argument("--method", choices=list(methods.REGISTRY), default=None,
                    help="the method the checkpoint must have been trained with (default: whatever it was)")
     p.add_argument("--any-palette", action="store_true",
                    help="allow datasets of another palette than the policy was trained with (a transfer test, "
@@ -51,17 +50,17 @@ def main(argv=None):
         p.error("--heldout and --train are both '': nothing to evaluate")
     ckpt = checkpoint.load(args.checkpoint)
     params, cfg = checkpoint.policy_params(ckpt, args.raw), ckpt["config"]
-    if args.method not in (None, cfg.method):
+    if args.method is not None and args.method != cfg.method:      # the checkpoint is not what was asked for
         p.error(f"{args.checkpoint} holds a {cfg.method!r} policy, not {args.method!r}; train one with "
                 f"`python -m oneshot.train --method {args.method}`")
-    if args.unadapted and cfg.method != "mil":
-        p.error(f"--unadapted compares MIL's policy before and after eq. (1); {cfg.method!r} does not adapt")
     cfg = dataclasses.replace(cfg, **{k: v for k, v in (("alpha", args.alpha), ("inner_steps", args.inner_steps))
                                       if v is not None})
     try:
-        inner.check_step(cfg.alpha, cfg.inner_steps)
+        method = methods.of(cfg)
     except ValueError as e:
         p.error(f"{e} (--alpha >= 0, --inner-steps >= 0)")
+    if args.unadapted and not method.adapts:
+        p.error(f"--unadapted compares a policy before and after eq. (1); {cfg.method!r} does not adapt")
     # Every dataset is found and checked before the first trial (not the second after the first's).
     for name, path in splits:
         if not os.path.exists(path):
@@ -76,11 +75,9 @@ def main(argv=None):
     loaded = {name: datasets.load(path) for name, path in splits}
     for name, path in splits:                # images, horizon, state, torques (and palette) as trained on
         checkpoint.check_data(ckpt, loaded[name]["metadata"], args.checkpoint, path, palette=not args.any_palette)
-    only = inner_only(cfg)
-    mil = cfg.method == "mil"
     results = {}
     for name, dataset in loaded.items():
-        condition = registry.conditioner(cfg, params, seed=args.seed)
+        condition = method.conditioner(params, seed=args.seed)
         r = imitation.one_shot_success(condition, dataset, args.trials, args.seed)
         r["ci95"] = lo, hi = wilson_interval(r["successes"], r["trials"])
         print(f"{name} colours: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
@@ -89,13 +86,13 @@ def main(argv=None):
         results[name] = r
         if name == "heldout":
             print(f"heldout colours, by colour: {colour_breakdown(r, args.trials, dataset['metadata'])}")
-        if name == "heldout" and mil:
-            g = adaptation_gain(params, dataset, cfg.alpha, cfg.inner_steps, only=only)
+        if name == "heldout" and method.adapts:
+            g = adaptation_gain(params, dataset, method.conditioner(params))
             print(f"heldout colours: eq. (2) loss on a second demo {g['before']:.3f} before adapting on "
                   f"one demo, {g['after']:.3f} after ({g['pairs']} pairs)")
             results["adaptation_gain"] = g
         if args.unadapted and name == "heldout":
-            u = imitation.one_shot_success(registry.conditioner(cfg, params, adapt=False), dataset, args.trials,
+            u = imitation.one_shot_success(method.unadapted(params), dataset, args.trials,
                                            args.seed)
             u["ci95"] = lo, hi = wilson_interval(u["successes"], u["trials"])
             print(f"heldout colours, unadapted policy: success {u['rate']:.3f} ({u['successes']}/{u['trials']}), "

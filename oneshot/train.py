@@ -1,9 +1,14 @@
 """Meta-training (paper Sections II and III): `python -m oneshot.train --help`.
 
-    python -m oneshot.train --profile default --run runs/default      # fast profile, 2 CPU cores
+    python -m oneshot.train --profile default --run runs/default      # the shipped policy's profile, 2 cores
     python -m oneshot.train --run runs/default --resume                # continue a stopped run exactly
 
-The command around `oneshot.training.run_folder.train` (the run folder) and `oneshot.training.loop` (the loop).
+A run folder holds checkpoint.npz (parameters, Adam state, iteration, random state, config) and log.jsonl
+(the meta-loss and held-out checks as they come). `--resume` continues the run with the config its
+checkpoint records (only how long, how often and the step size may change), exactly as if it had not
+stopped. Ctrl-C or a plain kill saves a checkpoint of the last finished iteration first (exit 130).
+Missing datasets are collected first with the profile's settings. The command around
+`oneshot.training.run_folder.train` (the run folder), which wraps `oneshot.training.loop` (the loop).
 """
 import argparse
 import dataclasses
@@ -11,22 +16,27 @@ import json
 import os
 import signal
 import time
+
 import numpy as np
+
+from oneshot import methods
 from oneshot.maml import shards
+from oneshot.methods.mil import INNER_PARAMS
 from oneshot.tools import cli, host
-from oneshot.training import checkpoint
+from oneshot.training import checkpoint, run_data
+from oneshot.training.config import PROFILES, TrainConfig
+from oneshot.training.run_folder import RESUMABLE, RunLocked, TrainingDiverged, train
 from oneshot.world import palette
-from oneshot.training.config import INNER_PARAMS, METHODS, PROFILES, TrainConfig
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
-from oneshot.training.run_folder import RESUMABLE, RunLocked, TrainingDiverged, train
 
 
 def main(argv=None):
     p = cli.Parser(prog="python -m oneshot.train", description=__doc__,
                    formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--profile", choices=sorted(PROFILES), default="default",
-                   help="named configuration (default: the fast profile; 'paper': MIL's iteration count)")
+    p.add_argument("--profile", choices=sorted(PROFILES), default=None,
+                   help="named configuration (default: 'default', the shipped policy's; with --resume: the "
+                        "checkpoint's own config)")
     p.add_argument("--run", default=None, help="run folder (default: runs/<profile>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --run from its checkpoint")
     # Each field's type says what it accepts (argparse names the flag when a value is refused); the
@@ -38,7 +48,7 @@ def main(argv=None):
                                                     "checkpoint_every", "shards", "lstm_units")}
     kinds_of.update(train_demos=cli.at_least(2, " (MAML adapts on one demo and scores another)"),
                     heldout_demos=cli.at_least(2, " (one to adapt on, another to evaluate)"))
-    choices = {"lr_schedule": ("constant", "cosine"), "inner_params": sorted(INNER_PARAMS), "method": METHODS,
+    choices = {"lr_schedule": ("constant", "cosine"), "inner_params": sorted(INNER_PARAMS), "method": methods.NAMES,
                "palette": palette.MODES}
     for field in dataclasses.fields(TrainConfig):
         text = f"override the profile's {field.name}" + (" (true/false)" if field.type is bool else "")
@@ -48,11 +58,17 @@ def main(argv=None):
     args = p.parse_args(argv)
     overrides = {f.name: getattr(args, f.name) for f in dataclasses.fields(TrainConfig)
                  if getattr(args, f.name) is not None}
-    cfg = dataclasses.replace(PROFILES[args.profile], **overrides)
-    run = args.run or os.path.join("runs", args.profile)
-    if args.resume:          # what --resume may change, as the checkpoint has it unless a flag says otherwise
+    profile = args.profile or "default"
+    run = args.run or os.path.join("runs", profile)
+    if args.resume and args.profile is None:   # the run's own config; flags may change only RESUMABLE fields
+        cfg = dataclasses.replace(checkpoint.load(os.path.join(run, "checkpoint.npz"))["config"], **overrides)
+    elif args.resume:                          # the profile named, as the checkpoint has what may change
         stored = checkpoint.load(os.path.join(run, "checkpoint.npz"))["config"]
+        cfg = dataclasses.replace(PROFILES[profile], **overrides)
         cfg = dataclasses.replace(cfg, **{k: getattr(stored, k) for k in RESUMABLE if k not in overrides})
+    else:
+        cfg = dataclasses.replace(PROFILES[profile], **overrides)
+    method = methods.of(cfg)
     # Before any work: what must fit in memory (the datasets to collect, a meta-batch's images) and
     # how many processes share the frames. Frames and image size: the training set's, if it exists.
     world = WorldConfig(palette=PaletteConfig(mode=cfg.palette))
@@ -65,8 +81,8 @@ def main(argv=None):
         except Exception:                        # a damaged file: train() says what is wrong with it
             pass
     try:
-        for path, split, demos, flag in ((cfg.train_data, "train", cfg.train_demos, "--train-demos"),
-                                         (cfg.heldout_data, "heldout", cfg.heldout_demos, "--heldout-demos")):
+        for path, split, demos, _ in run_data.specs(cfg):
+            flag = f"--{split}-demos"
             if not os.path.exists(path):
                 tasks = len(palette.split_colours(split, world.palette))
                 cli.check_memory(cli.dataset_bytes(tasks, demos, world.horizon, world.image_size, world.n_objects),
@@ -74,10 +90,10 @@ def main(argv=None):
                                  f"use a smaller {flag}")
         cli.check_memory(2 * cfg.meta_batch * frames * size * size * 3 * 4,
                          f"a meta-batch of {cfg.meta_batch} tasks (its {frames}-frame float32 images alone)",
-                         f"use a smaller --meta-batch (the profile's: {PROFILES[args.profile].meta_batch})")
+                         f"use a smaller --meta-batch (the profile's: {PROFILES[profile].meta_batch})")
     except ValueError as e:
         p.error(str(e))
-    if cfg.method == "mil" and cfg.shards > frames:
+    if method.shards > frames:
         p.error(f"argument --shards: the processes share each demo's {frames} frames, so 1 to {frames}; "
                 f"got {cfg.shards}")
     host.tune_malloc()
@@ -87,8 +103,7 @@ def main(argv=None):
         train(cfg, run, resume=args.resume)
     finally:
         signal.signal(signal.SIGTERM, previous)
-    done = "picked the random policy's torque std" if cfg.method == "random" else \
-        f"trained {cfg.iterations} meta-iterations"
+    done = f"trained {cfg.iterations} meta-iterations" if method.learns else f"fitted the {cfg.method} policy"
     print(f"{done} in {time.perf_counter() - t0:.0f} s; checkpoint: {os.path.join(run, 'checkpoint.npz')}")
 
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from oneshot.maml import batched, inner
+from oneshot.maml.inner import InnerLoop
 
 
 # ----- a tiny model: 2-layer tanh MLP with a summed squared-error loss (stands in for eq. 2) -----
@@ -87,7 +88,7 @@ def assert_batched_equals_loop(params, adapt, evaluate, loss, alpha, steps, **kw
     B = len(adapt[0]) if isinstance(adapt, (tuple, list)) else len(adapt)
     tasks = [(_task(adapt, b), _task(evaluate, b)) for b in range(B)]
     v_loop, g_loop = inner.meta_gradient(params, tasks, loss, alpha, steps, **kwargs)
-    v_batched, g_batched = batched.meta_gradient_batched(params, adapt, evaluate, loss, alpha, steps, **kwargs)
+    v_batched, g_batched = batched.meta_gradient_batched(params, adapt, evaluate, loss, InnerLoop(alpha, steps, **kwargs))
     assert v_batched == pytest.approx(v_loop, rel=1e-10)
     assert g_batched.keys() == g_loop.keys() == params.keys()
     for k in params:

@@ -1,5 +1,5 @@
-"""The baselines of Section IV (oneshot/baselines.py) and the one surface over every method
-(oneshot/methods.py): shapes, gradients against finite differences, and the property that makes each
+"""The baselines of Section IV (oneshot/methods/) and the one interface over every method
+(oneshot/methods/base.py): shapes, gradients against finite differences, and the property that makes each
 baseline what it is (the contextual policy sees the demo's final image, the LSTM remembers the demo,
 the random policy is as good as chance)."""
 import dataclasses
@@ -8,8 +8,11 @@ import numpy as np
 import pytest
 from autograd.test_util import check_grads
 
-from oneshot.maml import imitation
-from oneshot.methods import baselines, registry
+from oneshot import methods
+from oneshot.maml import batched, imitation
+from oneshot.methods.contextual import contextual_images, contextual_loss, contextual_policy
+from oneshot.methods.lstm import lstm_init_params, lstm_loss, lstm_network_config, lstm_policy, lstm_step
+from oneshot.methods.random_policy import random_policy
 from oneshot.policy import network
 from oneshot.training import config
 from oneshot.world.reach import ReachWorld, WorldConfig, success_window
@@ -24,26 +27,26 @@ def _demos(rng, dtype=np.float64):
 
 
 def _cfg(method, **overrides):
-    return dataclasses.replace(config.PROFILES["tiny"], method=method, feature_points=True, **overrides)
+    return dataclasses.replace(config.PROFILES["smoke"], method=method, feature_points=True, **overrides)
 
 
 @pytest.mark.parametrize("method", ["mil", "contextual", "lstm"])
 def test_every_method_has_the_right_shapes_and_finite_difference_gradients(rng, method):
     cfg = _cfg(method, lstm_units=4, inner_steps=1, alpha=0.1, inner_params="conv0")
-    net_cfg = dataclasses.replace(registry.network_config(cfg, 8), channels=(3, 4), hidden=(5,))
-    params = {k: v.astype(np.float64) for k, v in registry.init_params(cfg, net_cfg, rng).items()}
+    method = methods.of(cfg)
+    net_cfg = dataclasses.replace(method.network_config(8), channels=(3, 4), hidden=(5,))
+    params = {k: v.astype(np.float64) for k, v in method.init_params(net_cfg, rng).items()}
     adapt, evaluate = _demos(rng), _demos(rng)
-    loss, grads = registry.meta_gradient(cfg, params, adapt, evaluate)
+    loss, grads = method.meta_gradient(params, adapt, evaluate)
     assert np.ndim(loss) == 0 and grads.keys() == params.keys()
     assert all(grads[k].shape == params[k].shape and np.any(grads[k] != 0) for k in ("conv0_w", "out_w"))
-    settings = (cfg.alpha, cfg.inner_steps, cfg.first_order, config.inner_only(cfg))
-    objective = {"mil": lambda p: registry.batched.meta_objective_batched(p, adapt, evaluate,
-                                                                         imitation.imitation_loss, *settings),
-                 "contextual": lambda p: baselines.contextual_loss(p, adapt, evaluate),
-                 "lstm": lambda p: baselines.lstm_loss(p, adapt, evaluate)}[method]
+    objective = {"mil": lambda p: batched.meta_objective_batched(p, adapt, evaluate, imitation.imitation_loss,
+                                                                 methods.mil.inner_loop(cfg)),
+                 "contextual": lambda p: contextual_loss(p, adapt, evaluate),
+                 "lstm": lambda p: lstm_loss(p, adapt, evaluate)}[cfg.method]
     assert float(objective(params)) == pytest.approx(float(loss), rel=1e-12)
-    check_grads(objective, modes=["rev"], order=2 if method == "mil" else 1)(params)
-    policy = registry.conditioner(cfg, params)(tuple(a[0] for a in adapt))
+    check_grads(objective, modes=["rev"], order=2 if method.adapts else 1)(params)
+    policy = method.conditioner(params)(tuple(a[0] for a in adapt))
     image, state = evaluate[0][0, :1], evaluate[1][0, :1]
     action = policy(image, state, None) if callable(policy) else network.forward(policy, image, state)
     assert np.shape(action) == (1, 2)
@@ -54,36 +57,36 @@ def test_the_contextual_policy_sees_the_demos_final_image(rng):
     params = {k: v + 0.3 * rng.normal(size=v.shape) for k, v in params.items()}   # no dead ReLU, live biases
     demo = tuple(a[0] for a in _demos(rng))
     image, state = rng.random((1, 8, 8, 3)), rng.normal(size=(1, 6))
-    before = baselines.contextual_policy(params, demo)(image, state, None)
+    before = contextual_policy(params, demo)(image, state, None)
     early = (demo[0].copy(), demo[1], demo[2])
     early[0][0] = 1 - early[0][0]                                        # another first frame: no change
-    np.testing.assert_array_equal(baselines.contextual_policy(params, early)(image, state, None), before)
+    np.testing.assert_array_equal(contextual_policy(params, early)(image, state, None), before)
     final = (demo[0].copy(), demo[1], demo[2])
     final[0][-1] = 1 - final[0][-1]                                      # another final frame: new action
-    assert np.abs(baselines.contextual_policy(params, final)(image, state, None) - before).max() > 1e-6
-    stacked = baselines.contextual_images(demo[0], demo[0][-1])
+    assert np.abs(contextual_policy(params, final)(image, state, None) - before).max() > 1e-6
+    stacked = contextual_images(demo[0], demo[0][-1])
     assert stacked.shape == (T, 8, 8, 6) and np.array_equal(stacked[1, ..., 3:], demo[0][-1])
 
 
 def test_the_lstm_carries_the_demo_in_its_state(rng):
-    cfg = baselines.lstm_network_config(NET, 4)
-    params = baselines.lstm_init_params(cfg, 4, rng, np.float64)
+    cfg = lstm_network_config(NET, 4)
+    params = lstm_init_params(cfg, 4, rng, np.float64)
     assert params["lstm_w"].shape[1] == 16 and np.all(params["lstm_b"][4:8] == 1.0)     # forget gate opens
     params = {k: v + 0.3 * rng.normal(size=v.shape) for k, v in params.items()}   # no dead ReLU, live biases
     demo = tuple(a[0] for a in _demos(rng))
     image, state = rng.random((1, 8, 8, 3)), rng.normal(size=(1, 6))
-    before = baselines.lstm_policy(params, demo)(image, state, None)
+    before = lstm_policy(params, demo)(image, state, None)
     for k in range(3):                                # the demo's first frame: its image, state, action
         changed = [a.copy() for a in demo]
         changed[k][0] += 1.0
-        assert np.abs(baselines.lstm_policy(params, tuple(changed))(image, state, None) - before).max() > 1e-6, k
+        assert np.abs(lstm_policy(params, tuple(changed))(image, state, None) - before).max() > 1e-6, k
     # one step by hand: c' = s(f) c + s(i) tanh(g), h' = s(o) tanh(c')
     h, c, xw = rng.normal(size=(1, 4)), rng.normal(size=(1, 4)), rng.normal(size=(1, 16))
     w_h = params["lstm_w"][-4:]
     z = xw + h @ w_h
     s = lambda x: 1 / (1 + np.exp(-x))
     c_ref = s(z[:, 4:8]) * c + s(z[:, :4]) * np.tanh(z[:, 8:12])
-    h1, c1 = baselines.lstm_step(w_h, xw, h, c)
+    h1, c1 = lstm_step(w_h, xw, h, c)
     np.testing.assert_allclose(c1, c_ref, rtol=1e-12)
     np.testing.assert_allclose(h1, s(z[:, 12:]) * np.tanh(c_ref), rtol=1e-12)
 
@@ -92,7 +95,7 @@ def test_a_random_policy_of_zero_torque_succeeds_exactly_when_the_target_is_alre
     """Analytic expectation on a tiny case: with std 0 the arm never moves (a planar arm at rest,
     no gravity), so a trial succeeds iff the target lies within the success radius of the start."""
     world = ReachWorld(WorldConfig(split="heldout"))
-    policy = baselines.random_policy(0.0, np.random.default_rng(0))
+    policy = random_policy(0.0, np.random.default_rng(0))
     start = None
     for seed in range(40):
         trial = imitation.rollout(policy, world, seed)
@@ -105,8 +108,8 @@ def test_a_random_policy_of_zero_torque_succeeds_exactly_when_the_target_is_alre
 
 
 def test_the_random_policy_is_reproducible_and_its_std_is_what_it_draws():
-    a = baselines.random_policy(0.3, np.random.default_rng(5))
-    b = baselines.random_policy(0.3, np.random.default_rng(5))
+    a = random_policy(0.3, np.random.default_rng(5))
+    b = random_policy(0.3, np.random.default_rng(5))
     draws = np.concatenate([a(None, None, None) for _ in range(4000)])
     assert np.array_equal(draws[:10], np.concatenate([b(None, None, None) for _ in range(10)]))
     assert draws.std() == pytest.approx(0.3, rel=0.05) and abs(draws.mean()) < 0.02
@@ -114,6 +117,6 @@ def test_the_random_policy_is_reproducible_and_its_std_is_what_it_draws():
 
 def test_methods_refuse_unknown_names_and_the_random_policy_has_no_gradient():
     with pytest.raises(ValueError, match="method must be one of"):
-        registry.check(_cfg("maml"))
-    with pytest.raises(ValueError, match="nothing to train"):
-        registry.meta_gradient(_cfg("random"), {}, None, None)
+        methods.of(_cfg("maml"))
+    with pytest.raises(NotImplementedError, match="does not learn by gradient"):
+        methods.of(_cfg("random")).meta_gradient({}, None, None)

@@ -12,7 +12,7 @@ import pytest
 
 from oneshot.data import datasets
 from oneshot.maml import optim
-from oneshot.methods import registry
+from oneshot import methods
 from oneshot.policy import network
 from oneshot.training import checkpoint, config
 from oneshot.world.arm import ArmConfig
@@ -31,12 +31,12 @@ WORLD = WorldConfig(image_size=8)
 def save_tiny(path, cfg=CFG, net_cfg=NET, world=WORLD, seconds=None):
     """Save a tiny checkpoint at path; returns what was saved, as `load` returns it (rng: its state)."""
     rng = np.random.default_rng(0)
-    params = registry.init_params(cfg, net_cfg, rng)
+    params = methods.of(cfg).init_params(net_cfg, rng)
     adam = optim.adam_init(params)
     for _ in range(2):
         grads = {k: rng.standard_normal(v.shape).astype(v.dtype) for k, v in params.items()}
         params, adam = optim.adam_step(params, grads, adam)
-    ema = {k: (0.5 * v).astype(v.dtype) for k, v in params.items()} if cfg.ema and cfg.method != "random" else None
+    ema = {k: (0.5 * v).astype(v.dtype) for k, v in params.items()} if cfg.ema and methods.of(cfg).learns else None
     checkpoint.save(path, params, adam, 2, rng, cfg, net_cfg, ema, world=world, seconds=seconds)
     return {"params": params, "ema": ema, "adam": adam, "iteration": 2, "rng": rng.bit_generator.state,
             "config": cfg, "network": net_cfg, "world": None if world is None else
@@ -110,10 +110,10 @@ def test_round_trip_with_the_world_and_a_checksum(tmp_path):
     assert checkpoint.load(tmp_path / "timed.npz")["seconds"] == 12.5 and ckpt["seconds"] is None
 
 
-@pytest.mark.parametrize("method", config.METHODS)
+@pytest.mark.parametrize("method", methods.NAMES)
 def test_every_method_round_trips(tmp_path, method):
     cfg = dataclasses.replace(config.TrainConfig(), method=method, lstm_units=3, ema=0.5)
-    saved = save_tiny(tmp_path / "c.npz", cfg, registry.network_config(cfg, 8))
+    saved = save_tiny(tmp_path / "c.npz", cfg, methods.of(cfg).network_config(8))
     assert_equal(checkpoint.load(tmp_path / "c.npz"), saved)
 
 
@@ -284,9 +284,9 @@ def test_a_config_claiming_a_giant_network_is_refused_without_building_it(tmp_pa
                                                          r"and method need \(25000000000008, 5\)"):
         checkpoint.load(path)
     cfg = dataclasses.replace(config.TrainConfig(), method="lstm", lstm_units=3)
-    save_tiny(path, cfg, registry.network_config(cfg, 8))
+    save_tiny(path, cfg, methods.of(cfg).network_config(8))
     rewrite(path, _set("config", "lstm_units", 10 ** 9))
-    with pytest.raises(checkpoint.CheckpointError, match=r"lstm_units 1000000000 but the network's state_dim is "
+    with pytest.raises(checkpoint.CheckpointError, match=r"lstm_units is 1000000000 but the network's state_dim is "
                                                          r"only 9"):
         checkpoint.load(path)
 

@@ -48,7 +48,7 @@ def without_time(rows):
     return [{k: v for k, v in row.items() if k != "wall_seconds"} for row in rows]
 
 
-def test_plan_is_every_method_size_and_seed_cheapest_first():
+def test_plan_is_every_method_size_and_seed_smallest_first():
     for cfg in PROFILES.values():
         runs = plan(cfg)
         assert sorted((r.method, (r.colours, r.demos), r.seed) for r in runs) == sorted(
@@ -58,7 +58,10 @@ def test_plan_is_every_method_size_and_seed_cheapest_first():
         # seed by seed, small datasets first: the first len(sizes) x len(methods) runs draw the whole figure
         first = runs[:len(cfg.sizes) * len(cfg.methods)]
         assert {r.seed for r in first} == {cfg.seeds[0]} and [r.size for r in first] == sorted(r.size for r in first)
-    assert plan(PROFILES["quick"])[0].method == "random"
+        # within a size, the lines in the profile's order (no measured costs in the code)
+        for size in cfg.sizes:
+            assert [r.method for r in first if (r.colours, r.demos) == size] == list(cfg.methods)
+    assert plan(PROFILES["quick"])[0].method == PROFILES["quick"].methods[0]
     assert len(plan(PROFILES["paper"])) == 5 * 5 * 3
 
 
@@ -67,7 +70,7 @@ def test_run_spec_names_and_checks():
     assert (spec.size, spec.run_id) == (864, "lstm_c72_d12_s1_i6000")
     assert RunSpec("mil-paper", 3, 4, 0, 2).run_id == "mil-paper_c3_d4_s0_i2"
     with pytest.raises(ValueError, match="methods must be distinct names from"):
-        fig2.SweepConfig(methods=("mil", "maml"))
+        fig2.SweepConfig(methods=("mil-conv0", "maml"))
     with pytest.raises(ValueError, match="colours must be an int >= 1"):
         RunSpec("mil", 0, 3, 0, 2)
     with pytest.raises(ValueError, match="distinct products"):
@@ -292,7 +295,7 @@ def test_cli_names_the_cluster_extra_when_dask_is_missing(monkeypatch, capsys):
 def test_real_runs_resume_and_give_the_same_rows_in_threads_and_processes(tmp_path):
     """Two real tiny runs (`fig2.run_one`: train, checkpoint, score on the held-out trials) in a
     thread pool and in the default process pool: the same rows; a second sweep trains nothing again."""
-    runs = [r for r in plan(TINY) if r.seed == 0 and r.method in ("mil", "lstm") and r.size == 9]
+    runs = [r for r in plan(TINY) if r.seed == 0 and r.method in ("mil-conv0", "lstm") and r.size == 9]
     fig2.ensure_data(TINY, tmp_path / "data", workers=1, progress=False)
     context = run_context(TINY, tmp_path / "data")
     with concurrent.futures.ThreadPoolExecutor(2) as ex:
@@ -313,7 +316,7 @@ def test_real_runs_resume_and_give_the_same_rows_in_threads_and_processes(tmp_pa
 def test_a_resumed_run_counts_the_training_time_of_its_killed_sittings(tmp_path):
     """run_one's wall_seconds: the checkpoint's meta-training seconds (every sitting) plus the scoring;
     a checkpoint from before that record gives this sitting's time and says so in the notes."""
-    spec = next(r for r in plan(TINY) if r.seed == 0 and r.method == "mil" and r.size == 9)
+    spec = next(r for r in plan(TINY) if r.seed == 0 and r.method == "mil-conv0" and r.size == 9)
     fig2.ensure_data(TINY, tmp_path / "data", workers=1, progress=False)
     context = run_context(TINY, tmp_path / "data")
     whole = fig2.run_one(spec, str(tmp_path / "whole"), context)

@@ -18,7 +18,8 @@ import pytest
 from oneshot import benchmark, demo
 from oneshot.data import collection, datasets
 from oneshot.maml import optim, shards
-from oneshot.methods import registry
+from oneshot import methods
+from oneshot.methods.mil import MIL
 from oneshot.tools import cli
 from oneshot.training import checkpoint, config, run_folder
 from oneshot.world.palette import PaletteConfig
@@ -56,9 +57,9 @@ def nothing_written(folder):
 def tiny_checkpoint(tmp_path_factory):
     """An untrained checkpoint of the tiny profile (no training: the commands must refuse before using it)."""
     path = tmp_path_factory.mktemp("ckpt") / "checkpoint.npz"
-    cfg, rng = config.PROFILES["tiny"], np.random.default_rng(0)
-    net_cfg = registry.network_config(cfg, 8)
-    params = registry.init_params(cfg, net_cfg, rng)
+    cfg, rng = config.PROFILES["smoke"], np.random.default_rng(0)
+    net_cfg = methods.of(cfg).network_config(8)
+    params = methods.of(cfg).init_params(net_cfg, rng)
     checkpoint.save(path, params, optim.adam_init(params), 0, rng, cfg, net_cfg)
     return str(path)
 
@@ -98,13 +99,13 @@ def test_collect_checks_memory_against_what_is_available(capsys, tmp_path, monke
 
 @pytest.mark.parametrize("flag", ["--meta-batch", "--log-every", "--checkpoint-every", "--eval-trials"])
 def test_train_refuses_counts_of_zero(capsys, tmp_path, flag):
-    line, _ = refused(capsys, train.main, ["--profile", "tiny", "--run", str(tmp_path / "run"), flag, "0"])
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), flag, "0"])
     assert f"argument {flag}: expected a whole number >= 1; got '0'" in line
     nothing_written(tmp_path)
 
 
 def test_train_refuses_a_meta_batch_larger_than_memory(capsys, tmp_path):
-    line, _ = refused(capsys, train.main, ["--profile", "tiny", "--run", str(tmp_path / "run"), "--meta-batch", HUGE,
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), "--meta-batch", HUGE,
                                            "--train-data", str(tmp_path / "train.npz"),
                                            "--heldout-data", str(tmp_path / "heldout.npz")])
     assert f"a meta-batch of {HUGE} tasks" in line and "PB of memory" in line and "smaller --meta-batch" in line
@@ -127,7 +128,7 @@ def test_evaluate_with_no_datasets_says_so(capsys, tiny_checkpoint):
 def test_evaluate_names_a_missing_dataset_and_the_command_that_makes_it(capsys, tmp_path, tiny_checkpoint):
     missing = str(tmp_path / "heldout.npz")
     line, out = refused(capsys, evaluate.main, [tiny_checkpoint, "--heldout", missing, "--train", ""])
-    cfg = config.PROFILES["tiny"]
+    cfg = config.PROFILES["smoke"]
     assert (f"no heldout dataset at {missing!r} (--heldout)" in line and
             f"python -m oneshot.collect --out {missing} --split heldout --tasks 12 --demos {cfg.heldout_demos}" in line)
     assert out == ""
@@ -156,14 +157,14 @@ def test_evaluate_checks_the_json_path_before_any_work(capsys, tmp_path, where):
 
 @pytest.mark.parametrize("iterations", ["0", "-1"])
 def test_train_refuses_fewer_than_one_iteration(capsys, tmp_path, iterations):
-    line, out = refused(capsys, train.main, ["--profile", "tiny", "--run", str(tmp_path / "run"),
+    line, out = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"),
                                              "--iterations", iterations])
     assert "argument --iterations: expected a whole number >= 1" in line and "checkpoint" not in out
     nothing_written(tmp_path)
 
 
 def test_train_booleans_are_words_it_knows(capsys, tmp_path):
-    line, _ = refused(capsys, train.main, ["--profile", "tiny", "--run", str(tmp_path / "run"),
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"),
                                            "--first-order", "maybe"])
     assert "argument --first-order" in line and "true/1/yes" in line and "false/0/no" in line and "'maybe'" in line
     assert [cli.boolean(w) for w in ("true", "YES", "1", "False", "no", "0")] == [True] * 3 + [False] * 3
@@ -171,7 +172,7 @@ def test_train_booleans_are_words_it_knows(capsys, tmp_path):
 
 
 def test_train_refuses_a_negative_evaluation_period(capsys, tmp_path):
-    line, _ = refused(capsys, train.main, ["--profile", "tiny", "--run", str(tmp_path / "run"), "--eval-every", "-1"])
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), "--eval-every", "-1"])
     assert "argument --eval-every: expected a whole number >= 0" in line
     nothing_written(tmp_path)
 
@@ -182,20 +183,20 @@ def test_train_refuses_a_negative_evaluation_period(capsys, tmp_path):
 @pytest.fixture
 def tiny_cfg(tiny_datasets):
     train_path, heldout_path = tiny_datasets
-    return dataclasses.replace(config.PROFILES["tiny"], train_data=train_path, heldout_data=heldout_path,
+    return dataclasses.replace(config.PROFILES["smoke"], train_data=train_path, heldout_data=heldout_path,
                                iterations=6, checkpoint_every=100)
 
 
 def _interrupt_at(monkeypatch, call):
     """Make the `call`-th meta-gradient (1-based) raise KeyboardInterrupt, as Ctrl-C in the middle of it."""
-    real, calls = registry.meta_gradient, []
+    real, calls = MIL.meta_gradient, []
 
     def meta_gradient(*args):
         calls.append(1)
         if len(calls) == call:
             raise KeyboardInterrupt
         return real(*args)
-    monkeypatch.setattr(registry, "meta_gradient", meta_gradient)
+    monkeypatch.setattr(MIL, "meta_gradient", meta_gradient)
 
 
 @pytest.mark.parametrize("extras", [{}, {"ema": 0.5, "eval_every": 3, "eval_trials": 1}])
@@ -221,7 +222,7 @@ def test_ctrl_c_saves_the_last_finished_iteration_and_resume_continues_exactly(t
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
 def test_a_signalled_training_saves_says_where_in_one_line_and_exits_130(tmp_path, tiny_datasets, sig):
     run = tmp_path / "run"
-    command = [sys.executable, "-m", "oneshot.train", "--profile", "tiny", "--run", str(run), "--iterations",
+    command = [sys.executable, "-m", "oneshot.train", "--profile", "smoke", "--run", str(run), "--iterations",
                "100000", "--checkpoint-every", "100000", "--train-data", tiny_datasets[0],
                "--heldout-data", tiny_datasets[1]]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -247,7 +248,7 @@ def test_a_signalled_training_saves_says_where_in_one_line_and_exits_130(tmp_pat
 def test_a_second_training_in_the_same_folder_is_refused(tmp_path, tiny_cfg):
     run = tmp_path / "run"
     with run_folder.lock_run(str(run)):                        # as a training process holds it
-        done = subprocess.run([sys.executable, "-m", "oneshot.train", "--profile", "tiny", "--run", str(run),
+        done = subprocess.run([sys.executable, "-m", "oneshot.train", "--profile", "smoke", "--run", str(run),
                                "--train-data", tiny_cfg.train_data, "--heldout-data", tiny_cfg.heldout_data],
                               capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
     assert done.returncode == 1 and done.stderr == (f"error: another process (pid {os.getpid()}) is training in "
@@ -258,7 +259,7 @@ def test_a_second_training_in_the_same_folder_is_refused(tmp_path, tiny_cfg):
 
 def test_a_run_folder_that_is_a_file_is_refused(capsys, tmp_path, tiny_cfg):
     (tmp_path / "run").write_text("")
-    line, _ = refused(capsys, train.main, ["--profile", "tiny", "--run", str(tmp_path / "run"),
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"),
                                            "--train-data", tiny_cfg.train_data, "--heldout-data", tiny_cfg.heldout_data])
     assert "is a file; name a folder for the run" in line
 
@@ -280,14 +281,14 @@ def test_a_run_that_fails_before_starting_leaves_no_folder(tmp_path, tiny_cfg):
 
 
 def test_divergence_names_the_checkpoint_only_if_there_is_one(tmp_path, tiny_cfg, monkeypatch):
-    real = registry.meta_gradient
-    monkeypatch.setattr(registry, "meta_gradient", lambda *a: (np.nan, real(*a)[1]))
+    real = MIL.meta_gradient
+    monkeypatch.setattr(MIL, "meta_gradient", lambda *a: (np.nan, real(*a)[1]))
     with pytest.raises(run_folder.TrainingDiverged, match="at iteration 1; no checkpoint was saved before it"):
         run_folder.train(tiny_cfg, tmp_path / "run", progress=False)
     assert not (tmp_path / "run" / "checkpoint.npz").exists()
     monkeypatch.undo()
     run_folder.train(dataclasses.replace(tiny_cfg, iterations=2), tmp_path / "run2", progress=False)
-    monkeypatch.setattr(registry, "meta_gradient", lambda *a: (np.nan, real(*a)[1]))
+    monkeypatch.setattr(MIL, "meta_gradient", lambda *a: (np.nan, real(*a)[1]))
     path = tmp_path / "run2" / "checkpoint.npz"
     with pytest.raises(run_folder.TrainingDiverged, match=f"the last good checkpoint \\({path}, iteration 2\\) is "
                                                      f"kept: --resume with a smaller --lr"):
@@ -298,13 +299,13 @@ def test_a_bare_resume_keeps_the_runs_own_length_and_step(capsys, tmp_path, tiny
     """`--resume` alone (what the Ctrl-C message says to type) continues with the run's --lr and
     --iterations, not the profile's."""
     run = str(tmp_path / "run")
-    given = ["--profile", "tiny", "--run", run, "--train-data", tiny_cfg.train_data, "--heldout-data",
+    given = ["--profile", "smoke", "--run", run, "--train-data", tiny_cfg.train_data, "--heldout-data",
              tiny_cfg.heldout_data]
     run_folder.train(dataclasses.replace(tiny_cfg, lr=1e-4, iterations=2, checkpoint_every=1), run, progress=False,
                 stop_after=1)
     train.main(given + ["--resume"])
     kept = checkpoint.load(os.path.join(run, "checkpoint.npz"))
-    assert (kept["config"].lr, kept["iteration"]) == (1e-4, 2) != (config.PROFILES["tiny"].lr, config.PROFILES["tiny"].iterations)
+    assert (kept["config"].lr, kept["iteration"]) == (1e-4, 2) != (config.PROFILES["smoke"].lr, config.PROFILES["smoke"].iterations)
     capsys.readouterr()
 
 
@@ -325,7 +326,7 @@ def test_resume_may_lower_the_learning_rate_and_logs_it(tmp_path, tiny_cfg):
 def trained(tmp_path_factory, tiny_datasets):
     """A tiny profile's checkpoint after one iteration (it records the 32x32, 20-step world of its data)."""
     run = tmp_path_factory.mktemp("trained")
-    cfg = dataclasses.replace(config.PROFILES["tiny"], train_data=tiny_datasets[0], heldout_data=tiny_datasets[1],
+    cfg = dataclasses.replace(config.PROFILES["smoke"], train_data=tiny_datasets[0], heldout_data=tiny_datasets[1],
                               iterations=1)
     run_folder.train(cfg, run, progress=False)
     return str(run / "checkpoint.npz")

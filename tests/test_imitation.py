@@ -7,6 +7,7 @@ from autograd import grad
 from helpers import assert_batched_equals_loop
 from oneshot.maml import batched, imitation, inner
 from oneshot.policy import network
+from oneshot.maml.inner import InnerLoop
 
 CFG = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5, 5))
 
@@ -55,10 +56,10 @@ def test_second_order_meta_gradient_matches_finite_differences(rng):
     alpha, steps = 0.05, 3          # a large step so second-order terms matter
 
     def f(p):
-        return batched.meta_objective_batched(p, adapt, evaluate, imitation.imitation_loss, alpha, steps)
+        return batched.meta_objective_batched(p, adapt, evaluate, imitation.imitation_loss, InnerLoop(alpha, steps))
 
-    _, g = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, alpha, steps)
-    _, g_first = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, alpha, steps, True)
+    _, g = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, InnerLoop(alpha, steps))
+    _, g_first = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, InnerLoop(alpha, steps, True))
     eps = 1e-5
     for _ in range(3):
         d = {k: rng.normal(size=v.shape) for k, v in params.items()}
@@ -72,7 +73,7 @@ def test_second_order_meta_gradient_matches_finite_differences(rng):
 def test_first_order_meta_gradient_is_the_plain_gradient_at_the_adapted_parameters(rng):
     params = network.init_params(CFG, rng, dtype=np.float64)
     adapt, evaluate = _demos(rng, B=2), _demos(rng, B=2)
-    _, g = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.05, 3, True)
+    _, g = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, InnerLoop(0.05, 3, True))
     expected = {k: 0.0 for k in params}
     for b in range(2):
         p = params
@@ -101,7 +102,7 @@ def test_adaptation_lowers_the_loss_and_alpha_zero_changes_nothing(rng):
 def test_batched_meta_gradient_keeps_float32(rng):
     params = network.init_params(CFG, rng)
     adapt, evaluate = _demos(rng, B=2, dtype=np.float32), _demos(rng, B=2, dtype=np.float32)
-    value, g = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, 0.001, 3)
+    value, g = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, InnerLoop(0.001, 3))
     assert np.asarray(value).dtype == np.float32
     assert all(v.dtype == np.float32 for v in g.values())
 

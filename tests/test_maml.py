@@ -13,8 +13,8 @@ from autograd.test_util import check_grads
 
 from helpers import make_demo, make_mlp, make_tasks, mlp_loss
 from oneshot.maml import batched
-from oneshot.maml.inner import (STEP_PREFIX, clip_gradients, init_step_sizes, inner_update, meta_gradient,
-                          meta_objective)
+from oneshot.maml.inner import (STEP_PREFIX, InnerLoop, clip_gradients, init_step_sizes, inner_update,
+                                meta_gradient, meta_objective)
 
 
 def axpy(a, x, y):
@@ -121,7 +121,7 @@ def test_first_order_gradient_of_the_shared_parameters_with_only():
     _, grads = meta_gradient(params, tasks, mlp_loss, 0.05, 2, first_order=True, only=("W1",))
     # the batched training path (tasks stacked on a leading axis; W1 gets one copy per task) agrees
     adapt, evaluate = (tuple(np.stack(parts) for parts in zip(*side)) for side in zip(*tasks))
-    _, batched_grads = batched.meta_gradient_batched(params, adapt, evaluate, mlp_loss, 0.05, 2, True, ("W1",))
+    _, batched_grads = batched.meta_gradient_batched(params, adapt, evaluate, mlp_loss, InnerLoop(0.05, 2, True, ("W1",)))
     for k in ("b1", "W2", "b2"):
         np.testing.assert_allclose(grads[k], expected[k], rtol=1e-10, atol=1e-12, err_msg=k)
         np.testing.assert_allclose(batched_grads[k], expected[k], rtol=1e-10, atol=1e-12, err_msg=k)
@@ -311,3 +311,14 @@ def test_learnt_step_sizes_must_match_the_adapted_keys():
     params = {**params, **init_step_sizes(params, 0.1, only=("W1",))}
     with pytest.raises(ValueError, match="init_step_sizes"):
         inner_update(params, make_demo(rng), mlp_loss, 0.1, 1, only=("W",))
+
+
+def test_numpy_integers_are_step_counts():
+    """`inner_update(steps=np.int64(2))` (a count from a NumPy array, as researchers pass) is two steps."""
+    rng = np.random.default_rng(11)
+    params, demo = make_mlp(rng), make_demo(rng)
+    for k in inner_update(params, demo, mlp_loss, alpha=0.05, steps=np.int64(2)):
+        np.testing.assert_array_equal(inner_update(params, demo, mlp_loss, alpha=0.05, steps=np.int64(2))[k],
+                                      inner_update(params, demo, mlp_loss, alpha=0.05, steps=2)[k])
+    with pytest.raises(ValueError, match="non-negative int"):
+        inner_update(params, demo, mlp_loss, steps=np.float64(2.0))

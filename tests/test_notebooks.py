@@ -8,7 +8,7 @@ cell and the error. The test sets nothing else in the kernel: notebook 3 sets it
 visibly. Then one code cell that the test appends prints, as JSON, the values the notebook computed,
 and the test checks them: the expert's demo succeeded, the meta-gradient passed its finite-difference
 check, the meta-loss fell, and so on. Notebook 4 reads the committed results of the Figure 2
-experiment (oneshot/results/); while none are committed, it reads a tiny sweep the test makes (seconds)
+experiment (results/ in the repository); while none are committed, it reads a tiny sweep the test makes (seconds)
 with the experiment's own command, in the same format. The exercise notebooks (notebooks/exercises/)
 run with each cell tagged `exercise-N` replaced by the reference solution of exercise N.
 """
@@ -28,11 +28,12 @@ from nbclient import NotebookClient
 from nbclient.exceptions import CellExecutionError
 
 import oneshot
-from oneshot import demo
+from oneshot import demo, methods
 from oneshot.experiments import fig2
 from oneshot.world import palette
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
+RESULTS = Path(__file__).resolve().parent.parent / "results"             # the committed experiment results
 EXERCISE_NOTEBOOKS = sorted((NOTEBOOKS / "exercises").glob("*.ipynb"))
 CELL_TIMEOUT = 600        # seconds for one cell; all the notebooks together take well under a minute
 ADDED = "added_by_test"   # metadata flag of the cells the test adds
@@ -178,8 +179,8 @@ def fig2_results(tmp_path_factory):
     Figure 2 sweep, else a folder made here with `python -m oneshot.experiments fig2 --profile tiny` (20
     runs of 2 meta-iterations: seconds), in the committed format, as fig2_quick. Its copy as fig2_search
     stands in for the hyperparameter search, so that the notebook's search table runs too."""
-    if any(os.path.exists(os.path.join(fig2.RESULTS, f"fig2_{p}", "summary.json")) for p in ("paper", "quick")):
-        return Path(fig2.RESULTS)
+    if any((RESULTS / f"fig2_{p}" / "summary.json").exists() for p in ("paper", "quick")):
+        return RESULTS
     folder = tmp_path_factory.mktemp("fig2")
     results = folder / "results"
     command = [sys.executable, "-m", "oneshot.experiments", "fig2", "--profile", "tiny", "--no-progress",
@@ -209,7 +210,7 @@ EXPERIMENT_VALUES = """{
 def test_experiments(fig2_results, tmp_path):
     _, v = execute(with_results(fig2_results), "04_experiments.ipynb", tmp_path, values=EXPERIMENT_VALUES)
     profile = "paper" if (fig2_results / "fig2_paper" / "summary.json").exists() else "quick"
-    rows, summary = fig2.load_results(profile, results=str(fig2_results))
+    rows, summary = fig2.load_results(str(fig2_results / f"fig2_{profile}"))
     assert v["results"] == str(fig2_results) and v["profile"] == profile
     # Section 2: every method and size the summary holds, and every run.
     points = {(m, p["size"]): p for m, ps in summary["methods"].items() for p in ps}
@@ -217,7 +218,7 @@ def test_experiments(fig2_results, tmp_path):
     assert v["sizes"] == sorted({size for _, size in points})
     # Section 3: adapted vs unadapted, for exactly the MIL methods; the adapted counts, pooled from the
     # rows, are the summary's; the unadapted ones are counts of the same trials.
-    mil = {m for m in summary["methods"] if fig2.METHOD_CONFIGS[m].method == "mil"}
+    mil = {m for m in summary["methods"] if methods.of(fig2.LINES[m]).adapts}
     assert set(v["adaptation"]) == mil
     for method, by_size in v["adaptation"].items():
         assert sorted(map(int, by_size)) == sorted(p["size"] for p in summary["methods"][method])
@@ -225,10 +226,10 @@ def test_experiments(fig2_results, tmp_path):
             p = points[method, int(size)]
             assert (adapted, trials) == (p["successes"], p["trials"]) and 0 <= unadapted <= trials
     # Section 4: one line per size both inner loops were run at, with the summary's counts.
-    both = sorted({p["size"] for p in summary["methods"].get("mil", [])} &
-                  {p["size"] for p in summary["methods"].get("mil-paper", [])})
+    both = sorted({p["size"] for p in summary["methods"].get("mil-conv0", [])} &
+                  {p["size"] for p in summary["methods"].get("mil-all", [])})
     assert [line[0] for line in v["inner_loops"]] == both
-    assert all([a, b] == [points["mil", s]["successes"], points["mil-paper", s]["successes"]]
+    assert all([a, b] == [points["mil-conv0", s]["successes"], points["mil-all", s]["successes"]]
                for s, a, b in v["inner_loops"])
     # Section 5: the per-colour counts add up to the summary's at each method's largest size, and are
     # of held-out colours of the grid palette.
@@ -249,11 +250,11 @@ def test_experiments(fig2_results, tmp_path):
         assert v["search_table"] is None
     # Section 7: every method of the figure ran; the trained ones' losses are finite and the fixed probe
     # meta-batch's loss fell; one trial per held-out colour (2).
-    assert list(v["live"]) == list(fig2.METHODS)
+    assert list(v["live"]) == list(fig2.FIGURE)
     for method, r in v["live"].items():
         assert r["trials"] == 2 and 0 <= r["successes"] <= r["trials"]
-        if method == "random":
-            assert r["std"] in fig2.METHOD_CONFIGS["random"].random_stds
+        if "std" in r:
+            assert r["std"] in fig2.LINES[method].random_stds
         else:
             assert len(r["history"]) == v["ITERATIONS"] and np.all(np.isfinite(r["history"]))
             assert np.isfinite(r["probe_before"]) and r["probe_after"] < r["probe_before"], method
@@ -262,7 +263,7 @@ def test_experiments(fig2_results, tmp_path):
 def test_experiments_notebook_runs_without_matplotlib(fig2_results, tmp_path):
     nb, v = execute(with_results(fig2_results), "04_experiments.ipynb", tmp_path, first=WITHOUT_PLOTS,
                     values=EXPERIMENT_VALUES)
-    assert v["plt_is_none"] and len(v["live"]) == len(fig2.METHODS)
+    assert v["plt_is_none"] and len(v["live"]) == len(fig2.FIGURE)
     assert "install matplotlib to see the figure" in stdout(*nb.cells)
 
 

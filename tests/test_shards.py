@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from autograd.test_util import check_grads
 
-from oneshot.maml import batched, shards
+from oneshot import methods
+from oneshot.maml import batched, imitation, shards
 from oneshot.policy import network
 from oneshot.training import config
 
@@ -28,7 +29,7 @@ def _setup(rng, dtype=np.float64, T=4, B=5, **overrides):
         return (rng.random((B, T, 8, 8, 3)).astype(dtype), rng.normal(size=(B, T, 6)).astype(dtype),
                 rng.normal(size=(B, T, 2)).astype(dtype))
 
-    settings = (cfg.alpha, cfg.inner_steps, cfg.first_order, config.inner_only(cfg))
+    settings = (imitation.imitation_loss, methods.mil.inner_loop(cfg))
     return settings, params, demos(), demos()
 
 

@@ -16,13 +16,15 @@ from oneshot.maml import batched, imitation, inner, optim
 from oneshot.policy import network
 from oneshot.training import checkpoint, config, run_folder, scoring
 from oneshot import evaluate
+from oneshot.methods.mil import INNER_PARAMS, inner_loop
+from oneshot.training import loop
 from test_checkpoint import _set, rewrite
 
 
 @pytest.fixture
 def tiny(tiny_datasets):
     train_path, heldout_path = tiny_datasets
-    return dataclasses.replace(config.PROFILES["tiny"], train_data=train_path, heldout_data=heldout_path)
+    return dataclasses.replace(config.PROFILES["smoke"], train_data=train_path, heldout_data=heldout_path)
 
 
 def _same(p, q):
@@ -105,7 +107,7 @@ def test_a_short_seeded_run_lowers_the_meta_objective(tiny, tmp_path):
     batches = [imitation.sample_meta_batch(demos, np.random.default_rng(100 + i), 3) for i in range(4)]
 
     def objective(p):
-        return np.mean([batched.meta_objective_batched(p, a, e, imitation.imitation_loss, cfg.alpha, cfg.inner_steps)
+        return np.mean([batched.meta_objective_batched(p, a, e, imitation.imitation_loss, inner_loop(cfg))
                         for a, e in batches])
 
     first = run_folder.train(dataclasses.replace(cfg, iterations=1), tmp_path / "one", progress=False)
@@ -121,7 +123,7 @@ def test_unknown_inner_params_is_refused_before_training(tiny, tmp_path):
 
 def test_inner_params_choose_which_parameters_adapt():
     net = network.init_params(network.NetworkConfig(bias_transform=4, feature_points=True), np.random.default_rng(0))
-    adapted = {name: inner.adapted_keys(net, config.inner_only(dataclasses.replace(config.TrainConfig(), inner_params=name)))
+    adapted = {name: inner.adapted_keys(net, INNER_PARAMS[name])
                for name in ("all", "conv", "conv0")}
     assert adapted["all"] == list(net)
     assert adapted["conv"] == ["conv0_w", "conv0_b", "conv1_w", "conv1_b", "conv2_w", "conv2_b"]
@@ -139,7 +141,7 @@ def test_learnt_step_sizes_are_meta_trained_checkpointed_and_used_at_meta_test(t
     # meta-test adapts with the learnt sizes, not with alpha: zero sizes leave the policy as it is
     demo = imitation.prepare_demos(*(datasets.load(cfg.heldout_data)[k][0, 0] for k in ("images", "states", "actions")), 0.5)
     frozen = {**params, **{k: np.zeros_like(v) for k, v in steps.items()}}
-    adapted = imitation.adapt(frozen, demo, cfg.alpha, 1, only=config.inner_only(cfg))
+    adapted = imitation.adapt(frozen, demo, cfg.alpha, 1, only=INNER_PARAMS[cfg.inner_params])
     assert _same(adapted, {k: v for k, v in params.items() if k not in steps})
 
 
@@ -169,15 +171,15 @@ def test_moving_average_of_the_parameters_resumes_exactly_and_is_what_the_policy
 
 def test_learning_rate_schedules():
     cfg = dataclasses.replace(config.TrainConfig(), lr=1e-3, iterations=100)
-    assert [run_folder.learning_rate(cfg, i) for i in (0, 50, 99)] == [1e-3] * 3
+    assert [loop.learning_rate(cfg, i) for i in (0, 50, 99)] == [1e-3] * 3
     cos = dataclasses.replace(cfg, lr_schedule="cosine")
-    assert run_folder.learning_rate(cos, 0) == pytest.approx(1e-3)
-    assert run_folder.learning_rate(cos, 50) == pytest.approx(0.5e-3)
-    assert run_folder.learning_rate(cos, 100) == pytest.approx(0.0, abs=1e-15)
-    lrs = [run_folder.learning_rate(cos, i) for i in range(101)]
+    assert loop.learning_rate(cos, 0) == pytest.approx(1e-3)
+    assert loop.learning_rate(cos, 50) == pytest.approx(0.5e-3)
+    assert loop.learning_rate(cos, 100) == pytest.approx(0.0, abs=1e-15)
+    lrs = [loop.learning_rate(cos, i) for i in range(101)]
     assert all(a >= b for a, b in itertools.pairwise(lrs))             # never increases
     with pytest.raises(ValueError, match="lr_schedule must be"):
-        run_folder.learning_rate(dataclasses.replace(cfg, lr_schedule="step"), 0)
+        loop.learning_rate(dataclasses.replace(cfg, lr_schedule="step"), 0)
 
 
 def test_corrupt_checkpoint_is_named(tmp_path):
@@ -277,7 +279,7 @@ def test_evaluate_command_can_meta_test_with_another_step_size(tiny, tmp_path, c
 def test_adaptation_gain_scores_a_second_demo_before_and_after_adapting(tiny, tmp_path):
     params = run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
     heldout = datasets.load(tiny.heldout_data)                       # 2 colours x 2 demos: 2 pairs
-    g = scoring.adaptation_gain(params, heldout, alpha=0.01, steps=2)
+    g = scoring.adaptation_gain(params, heldout, lambda demo: imitation.adapt(params, demo, 0.01, 2))
     demos = imitation.prepare_demos(heldout["images"], heldout["states"], heldout["actions"],
                                     heldout["metadata"]["world"]["arm"]["max_torque"])
     task = [tuple(a[i] for a in demos) for i in range(2)]
@@ -287,7 +289,7 @@ def test_adaptation_gain_scores_a_second_demo_before_and_after_adapting(tiny, tm
     assert g["pairs"] == 2
     assert np.isclose(g["before"], np.mean(before), rtol=1e-5) and np.isclose(g["after"], np.mean(after), rtol=1e-5)
     assert g["after"] != g["before"]
-    same = scoring.adaptation_gain(params, heldout, alpha=0.0, steps=1)   # no step: no change
+    same = scoring.adaptation_gain(params, heldout, lambda demo: imitation.adapt(params, demo, 0.0, 1))   # no step
     assert np.isclose(same["before"], same["after"], rtol=1e-6)
 
 
@@ -309,7 +311,7 @@ def test_demo_adapts_a_checkpoint_and_reports_counts(tiny, tmp_path, capsys):
 
 def test_maml_benchmark_reports_the_settings_it_timed(capsys):
     from oneshot import benchmark
-    benchmark.main(["maml", "--profile", "tiny", "--iterations", "1", "--inner-steps", "1", "--shards", "1",
+    benchmark.main(["maml", "--profile", "smoke", "--iterations", "1", "--inner-steps", "1", "--shards", "1",
                     "--inner-params", "conv0", "--meta-batch", "3"])
     result = json.loads(capsys.readouterr().out)
     assert (result["inner_steps"], result["inner_params"], result["shards"], result["meta_batch"],
@@ -336,10 +338,10 @@ def test_maml_benchmark_reports_the_settings_it_timed(capsys):
 def test_maml_breakdown_finds_every_part_of_a_meta_gradient():
     """`--breakdown` times the network's primitives by name under cProfile: if a primitive were renamed
     or moved, its group would silently read 0 ms. Run in its own process: it sets BLAS to one thread."""
-    out = subprocess.run([sys.executable, "-m", "oneshot.benchmark", "maml", "--breakdown", "--profile", "tiny",
+    out = subprocess.run([sys.executable, "-m", "oneshot.benchmark", "maml", "--breakdown", "--profile", "smoke",
                           "--iterations", "1", "--inner-steps", "1"], capture_output=True, text=True, check=True)
     result = json.loads(out.stdout)
-    assert (result["profile"], result["tasks"], result["frames"], result["inner_steps"]) == ("tiny", 2, 20, 1)
+    assert (result["profile"], result["tasks"], result["frames"], result["inner_steps"]) == ("smoke", 2, 20, 1)
     parts = ["matrix_products_ms", "im2col_col2im_ms", "other_layer_primitives_ms"]
     assert all(result[k] > 0 for k in parts + ["part_ms", "matrix_products_gflop_per_second"])
     assert sum(result[k] for k in parts) + result["autograd_and_small_ops_ms"] == pytest.approx(result["part_ms"], abs=0.5)

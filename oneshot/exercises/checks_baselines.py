@@ -2,18 +2,18 @@
 the Wilson interval of a success rate, one LSTM step. Each compares with the package's own function."""
 import numpy as np
 
-from oneshot.methods import baselines
+from oneshot.methods import contextual, lstm
 from oneshot.training import scoring
 from oneshot.exercises.checking import Case, Checker, Mistake
 from oneshot.exercises.compare import Out
 
 # ----------------------------------------------------------------------------------------------------
-# 8. The contextual baseline's input: baselines.contextual_images
+# 8. The contextual baseline's input: contextual.contextual_images
 # ----------------------------------------------------------------------------------------------------
 
 
 def _package_contextual_input(images, demo_images):
-    return baselines.contextual_images(images, demo_images[..., -1, :, :, :])
+    return contextual.contextual_images(images, demo_images[..., -1, :, :, :])
 
 
 def _context_cases():
@@ -98,7 +98,7 @@ WILSON = Checker(
     ))
 
 # ----------------------------------------------------------------------------------------------------
-# 10. One LSTM step: baselines.lstm_step
+# 10. One LSTM step: lstm.lstm_step
 # ----------------------------------------------------------------------------------------------------
 
 
@@ -124,7 +124,7 @@ def _wrong_lstm(order="ifgo", gate=lambda x: 1 / (1 + np.exp(-x)), forget=True, 
 
 _state = lambda what: Out("array", what, ("batch", "unit"))
 LSTM = Checker(
-    expected=baselines.lstm_step, cases=_lstm_cases, out=Out("tuple", parts=(_state("your h'"), _state("your c'"))),
+    expected=lstm.lstm_step, cases=_lstm_cases, out=Out("tuple", parts=(_state("your h'"), _state("your c'"))),
     mistakes=(
         Mistake("your gate blocks are in the wrong order: z splits into i, f, g, o, in that order (you swapped "
                 "i and f)", _wrong_lstm(order="figo")),

@@ -30,7 +30,7 @@ import os
 import shlex
 import sys
 
-from oneshot.experiments.fig2 import LABELS, METHOD_CONFIGS, PROFILES, RESULTS, ensure_data, plan, run_context, run_one
+from oneshot.experiments.fig2 import LABELS, LINES, PROFILES, ensure_data, plan, run_context, run_one
 from oneshot.experiments.sweep import PLOTS, SweepLocked, plot, summarise, sweep, write_summary
 
 # Optional extras: the sweep runs without them and says which one a flag or the plot needs.
@@ -98,7 +98,7 @@ def main(argv=None):
             part = "_seeds" + "-".join(map(str, chosen))
             seeds = f"seed{'s' * (len(chosen) > 1)} {', '.join(map(str, chosen))} of {len(cfg.seeds)}"
         cfg = dataclasses.replace(cfg, seeds=tuple(sorted(args.seeds)))
-    out = args.out or os.path.join(RESULTS, f"fig2_{cfg.name}")
+    out = args.out or os.path.join("results", f"fig2_{cfg.name}")
     work = args.work
     runs = plan(cfg)
     ensure_data(cfg, args.data, progress=not args.no_progress)
@@ -126,7 +126,7 @@ def main(argv=None):
     if not PLOTS:
         print('fig2.png not drawn: the plot needs matplotlib (pip install ".[plots]")')
     elif rows:
-        plot(summary, os.path.join(out, f"fig2{part}.png"), {m: LABELS.get(m, m) for m in METHOD_CONFIGS},
+        plot(summary, os.path.join(out, f"fig2{part}.png"), {m: LABELS.get(m, m) for m in LINES},
              title=f"Figure 2 ({cfg.name} profile, {seeds})")
         print(f"figure: {os.path.join(out, f'fig2{part}.png')}")
     return 0

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 from oneshot.data import collection, datasets
 from oneshot.maml import imitation
-from oneshot.methods import registry
+from oneshot import methods
 from oneshot.tools import host
 from oneshot.training import checkpoint, run_folder
 from oneshot.training.config import PROFILES as PROFILES_TRAIN
@@ -42,12 +42,9 @@ from oneshot.experiments.sweep import RunSpec, read_rows
 from oneshot.world.reach import WorldConfig
 
 
-RESULTS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))), "results")  # FIXME
-
-
-def load_results(profile, results=RESULTS):
-    """The committed results of a Figure 2 sweep: (rows of runs.csv, summary.json as a dict)."""
-    folder = os.path.join(results, f"fig2_{profile}")
+def load_results(folder):
+    """The results of a Figure 2 sweep in `folder` (e.g. results/fig2_paper): (rows of runs.csv,
+    summary.json as a dict)."""
     with open(os.path.join(folder, "summary.json")) as f:
         return read_rows(os.path.join(folder, "runs.csv")), json.load(f)
 
@@ -56,40 +53,31 @@ def _default(**changes):
     return dataclasses.replace(PROFILES_TRAIN["default"], **changes)
 
 
-# The methods, as training configurations. All share the default profile's recipe (feature points, bias
-# transformation, Adam 3e-3, clipping, moving average 0.999, meta-batch 5); they differ in how one
-# demonstration enters (`oneshot.methods.registry`).
-#   mil        the default profile: one inner step of 0.3 on the first convolution
-#   mil-paper  every parameter adapts (the paper's inner loop), one step of 0.25: MIL's released code
+# The lines of the figure and the variants of the hyperparameter search (`--profile search`), each a
+# method (`oneshot.methods`) with its training configuration. All share the default profile's recipe
+# (feature points, bias transformation, Adam 3e-3, clipping, moving average 0.999, meta-batch 5); they
+# differ in how one demonstration enters, and MIL's variants in what eq. (1) adapts:
+#   mil-conv0  the default profile: one inner step of 0.3 on the first convolution
+#   mil-all    every parameter adapts (the paper's inner loop), one step of 0.25: MIL's released code
 #              scores eq. (2) as mean((100 (u - u_hat))^2), 10^4 times the mean squared error, with a
 #              nominal step of 0.001, i.e. a step of 10 on the mean squared error; our eq. (2) is a sum
 #              over 20 frames x 2 torques (40 times the mean), so that step is alpha = 10 / 40 = 0.25
-# and the variants of the hyperparameter search (`--profile search`, docs/experiments.md).
-METHOD_CONFIGS = {
-    "mil": _default(),
-    "mil-paper": _default(inner_params="all", alpha=0.25),
+LINES = {
+    "mil-conv0": _default(),
+    "mil-all": _default(inner_params="all", alpha=0.25),
     "contextual": _default(method="contextual"),
     "lstm": _default(method="lstm"),
     "random": _default(method="random"),
-    "mil-paper-a0.05": _default(inner_params="all", alpha=0.05),
-    "mil-paper-a0.01": _default(inner_params="all", alpha=0.01),
+    "mil-all-a0.05": _default(inner_params="all", alpha=0.05),
+    "mil-all-a0.01": _default(inner_params="all", alpha=0.01),
     "contextual-lr1e-3": _default(method="contextual", lr=1e-3),
     "lstm-lr1e-3": _default(method="lstm", lr=1e-3),
     "lstm-512": _default(method="lstm", lstm_units=512),
 }
-METHODS = ("mil", "mil-paper", "contextual", "lstm", "random")      # the lines of the figure
+FIGURE = ("mil-conv0", "mil-all", "contextual", "lstm", "random")      # the lines of the figure
 
-LABELS = {"mil": "MIL (first convolution adapts)", "mil-paper": "MIL (every parameter adapts, as the paper)",
+LABELS = {"mil-conv0": "MIL, first convolution adapts", "mil-all": "MIL, every parameter adapts (step 0.25)",
           "contextual": "contextual policy", "lstm": "LSTM", "random": "random policy"}
-
-
-def relative_cost(label):
-    """Seconds of one meta-iteration in one process (`python -m oneshot.benchmark maml --shards 1
-    [--inner-params all | --method M]`), only to order the runs, cheapest first."""
-    cfg = METHOD_CONFIGS[label]
-    if cfg.method == "mil":
-        return 0.147 if cfg.inner_params == "all" else 0.104
-    return {"contextual": 0.031, "lstm": 0.078 if cfg.lstm_units <= 100 else 0.156, "random": 0.0}[cfg.method]
 
 
 @dataclass(frozen=True)
@@ -98,7 +86,7 @@ class SweepConfig:
     192 to 5184 demonstrations (27x), 3 seeds, 10000 meta-iterations per run (the default profile's)."""
     name: str = "paper"
     sizes: tuple = ((24, 8), (36, 12), (72, 12), (144, 16), (324, 16))  # (colours, demos per colour)
-    methods: tuple = METHODS
+    methods: tuple = FIGURE               # lines of LINES
     seeds: tuple = (0, 1, 2)
     iterations: int = 10000                # meta-iterations per run: as long as the shipped policy trains
     trials: int = 10                       # trials per held-out colour (10 x 12 colours: 120 trials)
@@ -111,8 +99,8 @@ class SweepConfig:
         if not self.sizes or len({c * d for c, d in self.sizes}) != len(self.sizes):
             raise ValueError(f"sizes must be distinct (colours, demos) pairs with distinct products "
                              f"(one point per size on the figure); got {self.sizes}")
-        if not self.methods or set(self.methods) - set(METHOD_CONFIGS) or len(set(self.methods)) != len(self.methods):
-            raise ValueError(f"methods must be distinct names from {', '.join(METHOD_CONFIGS)}; got {self.methods}")
+        if not self.methods or set(self.methods) - set(LINES) or len(set(self.methods)) != len(self.methods):
+            raise ValueError(f"methods must be distinct names from {', '.join(LINES)}; got {self.methods}")
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"seeds must be distinct; got {self.seeds}")
         if self.trials < 1:
@@ -127,17 +115,17 @@ PROFILES = {
     "quick": SweepConfig(name="quick", sizes=((24, 8), (72, 12), (324, 16)), seeds=(0,), iterations=3000),
     "paper": SweepConfig(),
     "search": SweepConfig(name="search", sizes=((72, 12),), seeds=(0,), iterations=3000,
-                          methods=tuple(m for m in METHOD_CONFIGS if m != "random")),
+                          methods=tuple(m for m in LINES if m != "random")),
     "tiny": SweepConfig(name="tiny", sizes=((3, 3), (3, 4)), seeds=(0, 1), iterations=2, trials=2,  # tests
                         data=(3, 4), heldout=(2, 2)),
 }
 
 
 def plan(cfg):
-    """Every method x size x seed of `cfg`, as a list of RunSpec, cheapest first: seed by seed (so the
-    first pass draws the whole figure once), within a seed the smaller datasets, then the cheaper methods."""
+    """Every line x size x seed of `cfg`, as a list of RunSpec: seed by seed (so the first pass draws the
+    whole figure once), within a seed the smaller datasets first, then the lines in the profile's order."""
     runs = [RunSpec(m, c, d, s, cfg.iterations) for m in cfg.methods for c, d in cfg.sizes for s in cfg.seeds]
-    return sorted(runs, key=lambda r: (r.seed, r.size, relative_cost(r.method) * r.iterations, r.method))
+    return sorted(runs, key=lambda r: (r.seed, r.size, cfg.methods.index(r.method)))
 
 
 def data_paths(cfg, data_dir):
@@ -178,7 +166,7 @@ def run_config(spec, context):
     """The TrainConfig of one run: its method's configuration on the first `spec.colours` colours x
     `spec.demos` demos of the sweep's meta-training data, one process (the sweep runs several)."""
     return dataclasses.replace(
-        METHOD_CONFIGS[spec.method], **context.get("overrides", {}).get(spec.method, {}),
+        LINES[spec.method], **context.get("overrides", {}).get(spec.method, {}),
         train_data=context["train_data"], heldout_data=context["heldout_data"], palette=context["palette_mode"],
         tasks=spec.colours, demos=spec.demos, seed=spec.seed, iterations=spec.iterations, shards=1,
         eval_every=0, checkpoint_every=250, log_every=50)
@@ -202,14 +190,14 @@ def run_one(spec, run_dir, context):
     t_score = time.perf_counter()
     heldout = datasets.load(context["heldout_data"])
     params = checkpoint.policy_params(ckpt)
-    score = lambda adapt: imitation.one_shot_success(registry.conditioner(cfg, params, adapt, context["eval_seed"]),
-                                                     heldout, context["trials"], context["eval_seed"], progress=False)
-    r = score(True)
+    method = methods.of(cfg)
+    score = lambda condition: imitation.one_shot_success(condition, heldout, context["trials"], context["eval_seed"],
+                                                         progress=False)
+    r = score(method.conditioner(params, context["eval_seed"]))
     notes = {"per_colour": {str(c): round(rate * context["trials"]) for c, rate in r["per_colour"].items()}}
-    if cfg.method == "mil":
-        notes["unadapted_successes"] = score(False)["successes"]     # the same scenes, without eq. (1)
-    if cfg.method == "random":
-        notes["std"] = round(float(params["std"][0]), 6)
+    if method.adapts:                                                # the same scenes, without eq. (1)
+        notes["unadapted_successes"] = score(method.unadapted(params))["successes"]
+    notes.update(method.notes(params))
     if ckpt["seconds"] is None:
         spent, notes["wall"] = time.perf_counter() - t0, "this sitting"
     else:

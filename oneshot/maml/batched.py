@@ -1,51 +1,18 @@
-"""MAML for a whole meta-batch in one computation graph: the training path of Section II.
+"""Eq. (1) for a whole meta-batch in one computation graph: the training path of Section II.
 
-`oneshot.maml.inner` is the plain path (one task at a time, in autograd's own terms). This module computes
-the same meta-objective and meta-gradient faster, three ways, each measured (docs/results.md) and each
-tested equal to the plain path:
-
-  - one graph for the B tasks of a meta-batch: every adapted parameter gets a leading task axis, one
-    copy per task, so eq. (1) runs for all tasks at once (`meta_objective_batched`);
-  - one root node per parameter array instead of autograd's boxed dict (`value_and_grads`);
-  - eq. (1) for one array as a single recorded operation (the `gradient_step` primitive).
+`inner.inner_update` is eq. (1), written once. Training applies that same function to a meta-batch
+(`adapt_batch`): every adapted parameter gets a leading task axis, one copy per task, so that task b's
+loss depends only on copy b and the gradient of the summed loss with respect to the copies is, row by
+row, each task's own inner gradient. autograd then records one graph instead of B; and the gradients
+take a cheaper route than autograd's boxed dict (`value_and_grads`). Both give the numbers of the plain
+per-task path, which the tests prove (docs/results.md, "Speed", has what each buys).
 """
 import autograd.numpy as np
 from autograd.core import VJPNode, add_outgrads, vspace
-from autograd.extend import defvjp, primitive
 from autograd.tracer import isbox, new_box, trace_stack
 from autograd.util import toposort
 
-from oneshot.maml.inner import check_step, constant, split
-
-
-@primitive
-def gradient_step(theta, g, alpha):
-    """theta - alpha * g for a python-float step size alpha: eq. (1) for one parameter array.
-
-    One recorded operation whose VJPs are the identity (theta) and `scale` (g), instead of a
-    product and a difference whose generic VJPs check broadcasting at every call; with 3 inner steps
-    on every parameter that bookkeeping is a large part of a meta-iteration's Python time."""
-    return theta - alpha * g
-
-
-@primitive
-def scale(x, a):
-    """a * x for a python float a (the VJP of `gradient_step` with respect to g; its own VJP)."""
-    return a * x
-
-
-defvjp(gradient_step, lambda ans, theta, g, alpha: lambda u: u,
-       lambda ans, theta, g, alpha: lambda u: scale(u, -alpha))
-defvjp(scale, lambda ans, x, a: lambda u: scale(u, a))
-
-
-def _step(theta, g, alpha):
-    """Eq. (1) for one array: the primitive for a scalar step size, plain operations for a learnt
-    (array) one, whose own gradient the meta-objective needs."""
-    if isinstance(alpha, float) and np.shape(theta) == np.shape(g):
-        return gradient_step(theta, g, alpha)
-    return theta - alpha * g
-
+from oneshot.maml.inner import adapted_keys, inner_update
 
 
 def value_and_grads(fun, arrays, *args):
@@ -59,8 +26,7 @@ def value_and_grads(fun, arrays, *args):
     with several roots) hands each array its gradient directly. It nests like `grad`: called while
     an outer gradient is being traced (MAML's inner steps), its backward pass is itself recorded
     and differentiable again.
-    Measured (`python -m oneshot.benchmark maml --profile mil`): the Python time of a second-order
-    3-step meta-gradient drops by about a third, a whole meta-iteration by 8-12% (docs/results.md).
+    What it buys is measured in docs/results.md ("Speed").
 
     arrays: dict name -> array (or autograd box). fun(arrays, *args) -> scalar.
     Returns (value, grads): grads a dict with the keys of `arrays`; zeros for arrays fun ignores.
@@ -83,37 +49,35 @@ def value_and_grads(fun, arrays, *args):
     return value, {k: grads[k] if k in grads else vspace(v).zeros() for k, v in arrays.items()}
 
 
-def meta_objective_batched(params, adapt, evaluate, loss_tasks, alpha, steps, first_order=False, only=None,
-                           reduce=None):
-    """`maml.meta_objective` for a whole meta-batch in one computation graph (same value, faster).
+def adapt_batch(params, adapt, loss_tasks, inner, reduce=None):
+    """Eq. (1) for every task of a meta-batch at once: `inner.inner_update`, applied to B copies of the
+    adapted parameters (a leading task axis) with `value_and_grads` as its gradient.
 
-    Each of the B tasks gets its own copy of the parameters (a leading task axis). Task b's loss
-    depends only on copy b, so the gradient of the summed loss with respect to the copies is, row by
-    row, each task's own inner gradient: eq. (1) for all tasks at once. autograd then records one
-    graph instead of B, which made a 5-task second-order meta-iteration ~1.7x faster
-    (docs/results.md, "Speed").
-
-    params: dict of arrays (no task axis). adapt, evaluate: batched demos, opaque here, with B tasks.
-    loss_tasks(params_b, demos) -> scalar: the SUM over tasks of eq. (2), where every array of params_b
-        has a leading task axis of size B.
-    only: as in `maml.inner_update`; parameters that do not adapt stay shared (no task axis).
-    reduce: None, or a differentiable function applied to every inner gradient (B, ...) before eq. (1):
-        when several processes each hold some of the demos' frames, the sum over processes of their
-        parts (`oneshot.maml.shards`), since eq. (2) sums over frames.
-    Returns the mean over tasks of the post-adaptation loss, like `maml.meta_objective`.
+    params: dict of arrays (no task axis). adapt: batched demos with B tasks, opaque here.
+    loss_tasks(params_b, demos) -> scalar: the SUM over tasks of eq. (2), where an array of params_b
+        may have a leading task axis of size B.
+    inner: `inner.InnerLoop`, every option of eq. (1); parameters that do not adapt stay shared.
+    reduce: as in `inner_update` (`oneshot.maml.shards`).
+    Returns the adapted parameters: a dict like params, each adapted array with a task axis (B, ...).
     """
-    alpha = check_step(alpha, steps)
     B = _batch_size(adapt)
-    fixed, keys, step = split(params, only, alpha)
-    adapted = {k: np.ones((B,) + (1,) * np.ndim(params[k]), dtype=params[k].dtype) * params[k] for k in keys}
-    inner = constant(fixed) if first_order else fixed        # first order: the inner gradient is a constant
-    loss = lambda sub, d: loss_tasks({**inner, **sub}, d)
-    for _ in range(steps):
-        _, g = value_and_grads(loss, constant(adapted) if first_order else adapted, adapt)
-        if reduce is not None:
-            g = {k: reduce(v) for k, v in g.items()}
-        adapted = {k: _step(adapted[k], g[k], step[k]) for k in adapted}
-    return loss_tasks({**fixed, **adapted}, evaluate) / B
+    copies = {k: np.ones((B,) + (1,) * np.ndim(params[k]), dtype=params[k].dtype) * params[k]
+              for k in adapted_keys(params, inner.only)}
+    return inner_update({**params, **copies}, adapt, loss_tasks, **inner.options(), gradient=_gradient,
+                        reduce=reduce)
+
+
+def _gradient(f, theta):
+    return value_and_grads(lambda th: f(th), theta)[1]
+
+
+def meta_objective_batched(params, adapt, evaluate, loss_tasks, inner, reduce=None):
+    """`inner.meta_objective` for a whole meta-batch in one computation graph (the same value, faster):
+    the mean over the B tasks of eq. (2) on the evaluate demos after `adapt_batch` on the adapt demos.
+
+    params, adapt, loss_tasks, inner, reduce: as in `adapt_batch`. evaluate: batched demos, B tasks.
+    """
+    return loss_tasks(adapt_batch(params, adapt, loss_tasks, inner, reduce), evaluate) / _batch_size(adapt)
 
 
 def _batch_size(demos):
@@ -122,8 +86,6 @@ def _batch_size(demos):
     return int(np.shape(first)[0])
 
 
-def meta_gradient_batched(params, adapt, evaluate, loss_tasks, alpha, steps, first_order=False, only=None,
-                          reduce=None):
+def meta_gradient_batched(params, adapt, evaluate, loss_tasks, inner, reduce=None):
     """Value and gradient of `meta_objective_batched` with respect to `params` (a dict like it)."""
-    return value_and_grads(meta_objective_batched, params, adapt, evaluate, loss_tasks, alpha, steps,
-                           first_order, only, reduce)
+    return value_and_grads(meta_objective_batched, params, adapt, evaluate, loss_tasks, inner, reduce)

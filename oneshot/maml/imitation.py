@@ -64,10 +64,10 @@ class PolicyDiverged(ValueError):
     """A policy's torques are NaN or inf: its checkpoint diverged (bad input, so a ValueError)."""
 
 
-def adapt(params, demo, alpha=0.001, steps=3, only=None):
-    """One-shot adaptation (eq. 1) to a single demo (images, states, actions) in network units.
-    only: None (adapt every parameter) or key prefixes of the parameters that adapt (inner.inner_update)."""
-    return inner.inner_update(params, demo, imitation_loss, alpha, steps, only=only)
+def adapt(params, demo, alpha=0.001, steps=3, **options):
+    """One-shot adaptation (eq. 1 with eq. 2 as its loss) to a single demo (images, states, actions) in
+    network units: `inner.inner_update`, whose options (first_order, only, ...) pass through."""
+    return inner.inner_update(params, demo, imitation_loss, alpha, steps, **options)
 
 
 def act(policy, obs, max_torque, scene=None):
@@ -104,9 +104,9 @@ def rollout(policy, world, seed, target_colour=None):
             "images": np.stack(images), "end_effector": np.stack(ee), "scene": info["scene"]}
 
 
-def one_shot_trial(params, demo, world, seed, target_colour, alpha=0.001, steps=3, only=None):
+def one_shot_trial(params, demo, world, seed, target_colour, alpha=0.001, steps=3, **options):
     """Meta-test (Section III-B): adapt on ONE demo (network units), then act in a new scene."""
-    return rollout(adapt(params, demo, alpha, steps, only), world, seed, target_colour)
+    return rollout(adapt(params, demo, alpha, steps, **options), world, seed, target_colour)
 
 
 TRIAL_SEED_OFFSET = 1_000_003   # trial scenes never reuse a dataset's scene seeds (those are 63-bit hashes)

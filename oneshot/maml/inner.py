@@ -18,15 +18,20 @@ Dtypes: float32 parameters stay float32 everywhere (adapted parameters, meta-obj
 meta-gradients). Under NumPy 2 a python float times a float32 array stays float32, but an
 np.float64 scalar promotes it to float64, so step sizes are converted to python floats on entry.
 """
+import dataclasses
+import numbers
+from dataclasses import dataclass
+
 import autograd.numpy as np  # autograd's wrapper: the operations below are recorded for the meta-gradient
 from autograd import grad, value_and_grad
+from autograd.extend import defvjp, primitive
 from autograd.tracer import getval
 
 
 def check_step(alpha, steps):
     """Validate inner-loop settings (alpha >= 0 finite, steps an int >= 0); return alpha as a python
     float, which keeps float32 parameters float32 (NumPy 2's weak scalars)."""
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
+    if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 0:   # np.int64 too
         raise ValueError(f"inner steps must be a non-negative int; got {steps!r}")
     try:
         alpha = float(alpha)
@@ -73,7 +78,72 @@ def split(params, only, alpha):
     return fixed, keys, {k: learnt.get(k, alpha) for k in keys}
 
 
-def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False, only=None):
+@dataclass(frozen=True)
+class InnerLoop:
+    """Every option of eq. (1) in one place: exactly the keyword options of `inner_update`, which
+    training (`batched.adapt_batch`) and meta-test (`imitation.adapt`) both pass on whole, so the
+    policy that is trained is the policy that is tested.
+
+    alpha: step size (MIL reaching: 0.001); steps: inner gradient steps (MIL: 3);
+    first_order: the inner gradient as a constant (first-order MAML);
+    only: None (every parameter adapts, as MIL) or key prefixes of the parameters that adapt.
+    """
+    alpha: float = 0.001
+    steps: int = 3
+    first_order: bool = False
+    only: tuple = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "alpha", check_step(self.alpha, self.steps))
+        object.__setattr__(self, "steps", int(self.steps))
+        if self.only is not None:
+            if isinstance(self.only, str) or not all(isinstance(p, str) for p in self.only):
+                raise ValueError(f"only must be None or a tuple of key prefixes; got {self.only!r}")
+            object.__setattr__(self, "only", tuple(self.only))
+        if not isinstance(self.first_order, (bool, np.bool_)):
+            raise ValueError(f"first_order must be True or False; got {self.first_order!r}")
+
+    def options(self):
+        """The keyword options of `inner_update`: {"alpha", "steps", "first_order", "only"}."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+
+@primitive
+def descend(theta, g, alpha):
+    """theta - alpha * g for a python-float step size alpha: eq. (1) for one parameter array.
+
+    One recorded operation whose VJPs are the identity (theta) and `scale` (g), instead of a
+    product and a difference whose generic VJPs check broadcasting at every call: with 3 inner steps
+    on every parameter that bookkeeping is a large part of a meta-iteration's Python time
+    (docs/results.md, "Speed")."""
+    return theta - alpha * g
+
+
+@primitive
+def scale(x, a):
+    """a * x for a python float a (the VJP of `descend` with respect to g; its own VJP)."""
+    return a * x
+
+
+defvjp(descend, lambda ans, theta, g, alpha: lambda u: u, lambda ans, theta, g, alpha: lambda u: scale(u, -alpha))
+defvjp(scale, lambda ans, x, a: lambda u: scale(u, a))
+
+
+def step(theta, g, alpha):
+    """Eq. (1) for one array, theta - alpha * g: `descend` for a scalar step size, plain operations for
+    a learnt (array) one, whose own gradient the meta-objective needs."""
+    if isinstance(alpha, float) and np.shape(theta) == np.shape(g):
+        return descend(theta, g, alpha)
+    return theta - alpha * g
+
+
+def gradient(f, theta):
+    """df/dtheta for a dict of arrays theta, by autograd's `grad` (the plain route)."""
+    return grad(f)(theta)
+
+
+def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False, only=None, *,
+                 gradient=gradient, reduce=None):
     """Adapt parameters to one demo by gradient descent: paper eq. (1), repeated `steps` times.
 
         theta' = theta - alpha * grad_theta L(theta, demo)
@@ -85,19 +155,23 @@ def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False,
     first_order: treat each inner gradient as a constant (first-order MAML: d theta'/d theta = I).
     only: None (MIL: every parameter adapts) or key prefixes of the parameters that adapt; the
         others keep their values.
+    gradient(f, theta) -> df/dtheta: autograd's `grad`, or the batched path's faster route to the same
+        numbers (`batched.adapt_batch`, which also gives every task its own copy of the parameters).
+    reduce: None, or a function applied to every inner gradient before the step (`oneshot.maml.shards`:
+        the sum over processes of their frames' parts, since eq. (2) sums over frames).
     Returns a new dict with the model's keys (learnt step sizes dropped), differentiable to any order
     with respect to `params` (first_order=False).
     """
     alpha = check_step(alpha, steps)
-    fixed, keys, step = split(params, only, alpha)
-    loss = lambda theta, shared: loss_fn({**shared, **theta}, demo)
+    fixed, keys, step_size = split(params, only, alpha)
     theta = {k: params[k] for k in keys}
     for _ in range(steps):
-        if first_order:              # the inner gradient as a constant: every parameter cut from the outer graph
-            g = grad(loss)(constant(theta), constant(fixed))
-        else:
-            g = grad(loss)(theta, fixed)
-        theta = {k: theta[k] - step[k] * g[k] for k in theta}                 # eq. (1)
+        # first order: the gradient is taken at constants, cut from the outer graph
+        at, shared = (constant(theta), constant(fixed)) if first_order else (theta, fixed)
+        g = gradient(lambda th: loss_fn({**shared, **th}, demo), at)
+        if reduce is not None:
+            g = {k: reduce(v) for k, v in g.items()}
+        theta = {k: step(theta[k], g[k], step_size[k]) for k in theta}         # eq. (1)
     return {**fixed, **theta}
 
 
@@ -106,7 +180,7 @@ def constant(arrays):
     return {k: getval(v) for k, v in arrays.items()}
 
 
-def meta_objective(params, tasks, loss_fn, alpha, steps, first_order=False, only=None):
+def meta_objective(params, tasks, loss_fn, *args, **options):
     """The MAML meta-objective: mean over tasks of the post-adaptation loss (paper Section II).
 
         L_meta(theta) = (1/N) sum_i L(theta - alpha grad L(theta, adapt_demo_i), eval_demo_i)
@@ -117,7 +191,7 @@ def meta_objective(params, tasks, loss_fn, alpha, steps, first_order=False, only
 
     params: dict of arrays, not modified.
     tasks: sequence of (adapt_demo, eval_demo) pairs, one per task in the meta-batch.
-    loss_fn, alpha, steps, first_order, only: as in `inner_update`.
+    loss_fn, args, options (alpha, steps, first_order, only): as in `inner_update`.
     Returns a scalar of the parameters' dtype.
     """
     if len(tasks) == 0:
@@ -127,7 +201,7 @@ def meta_objective(params, tasks, loss_fn, alpha, steps, first_order=False, only
         if len(task) != 2:
             raise ValueError(f"each task must be a pair (adapt_demo, eval_demo); got {len(task)} items")
         adapt_demo, eval_demo = task
-        adapted = inner_update(params, adapt_demo, loss_fn, alpha, steps, first_order, only)
+        adapted = inner_update(params, adapt_demo, loss_fn, *args, **options)
         total = total + loss_fn(adapted, eval_demo)
     return total / len(tasks)
 
@@ -135,7 +209,7 @@ def meta_objective(params, tasks, loss_fn, alpha, steps, first_order=False, only
 _value_and_grad_meta = value_and_grad(meta_objective)  # gradient w.r.t. argument 0, `params`
 
 
-def meta_gradient(params, tasks, loss_fn, alpha, steps, first_order=False, only=None):
+def meta_gradient(params, tasks, loss_fn, *args, **options):
     """Value and gradient of `meta_objective` with respect to `params` (paper Section II).
 
     With first_order=False this differentiates through the inner updates, so Hessian-vector
@@ -145,7 +219,7 @@ def meta_gradient(params, tasks, loss_fn, alpha, steps, first_order=False, only=
 
     Returns (value, grads): value a scalar, grads a dict with the keys, shapes and dtypes of params.
     """
-    return _value_and_grad_meta(params, tasks, loss_fn, alpha, steps, first_order, only)
+    return _value_and_grad_meta(params, tasks, loss_fn, *args, **options)
 
 
 def clip_gradients(grads, limit=10.0):

@@ -16,10 +16,9 @@ share of the meta-objective; one more exchange adds them up: the meta-gradient.
 The processes meet at every `allreduce` (twice per inner gradient: once forward, once backward), through
 shared memory and one-byte tokens on pipes; they run the same code on the same shapes, so they meet in
 the same order. The worker processes are forked once and then read their parameters and frames from
-shared memory each iteration (nothing is pickled). Results depend on `shards`, never on the number of
-cores: `shards` processes run even on one core. Against splitting the tasks 3 + 2 and pickling the
-worker's share, a meta-iteration of the default profile is 13-15% faster, the paper's inner loop 6%
-(docs/results.md, "Speed").
+shared memory each iteration (nothing is pickled but the settings). Results depend on `shards`, never
+on the number of cores: `shards` processes run even on one core. What splitting frames rather than
+tasks buys is measured in docs/results.md ("Speed").
 """
 import mmap
 import multiprocessing
@@ -31,7 +30,7 @@ import traceback
 import numpy as np
 from autograd.extend import defvjp, primitive
 
-from oneshot.maml import batched, imitation
+from oneshot.maml import batched
 from oneshot.tools.host import blas_threads, die_with_parent
 
 TIMEOUT = 600.0   # seconds a process waits for the others at one exchange before giving up
@@ -137,12 +136,14 @@ def part(params, adapt, evaluate, settings, exchange=None):
     """This process's part: (value, grads) of its frames' share of the meta-objective, summed over the
     processes of `exchange` when there is one (then every process returns the whole meta-gradient).
 
-    settings: (alpha, inner_steps, first_order, only) as in `batched.meta_gradient_batched`.
+    settings: (loss_tasks, inner) as in `batched.meta_gradient_batched`: the summed loss (a module-level
+    function: the workers receive it pickled) and the `inner.InnerLoop`.
     """
+    loss_tasks, inner = settings
     if exchange is None:
-        return batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, *settings)
-    value, grads = batched.meta_gradient_batched(params, adapt, evaluate, imitation.imitation_loss, *settings,
-                                              reduce=lambda g: allreduce(g, exchange))
+        return batched.meta_gradient_batched(params, adapt, evaluate, loss_tasks, inner)
+    value, grads = batched.meta_gradient_batched(params, adapt, evaluate, loss_tasks, inner,
+                                                 reduce=lambda g: allreduce(g, exchange))
     flat = [grads[k].ravel() for k in params]
     flat = exchange.sum(np.concatenate(flat + [np.ravel(value).astype(flat[0].dtype)]))   # (n_params + 1,)
     offsets = np.cumsum([0] + [v.size for v in params.values()])
@@ -285,7 +286,7 @@ def meta_gradient(params, adapt, evaluate, settings, shards=1, pool=None):
     of frames.
 
     params: dict of arrays. adapt, evaluate: batched demos (tuples of (B, T, ...) arrays).
-    settings: (alpha, inner_steps, first_order, only) as in `batched.meta_gradient_batched`.
+    settings: (loss_tasks, inner) as in `part`.
     pool: `make_pool(shards)`, needed when shards > 1.
     Returns (value, grads) as `batched.meta_gradient_batched`; the numbers depend on `shards` only.
     """

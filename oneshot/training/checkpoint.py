@@ -14,7 +14,7 @@ names the file and what is wrong with it, never a KeyError three calls deeper or
 parameter. It checks the file as `npz.Reader` does (each array's npy header against its zip member's
 size before reading the data, so a damaged header cannot claim terabytes; the zip's CRCs), a SHA-256
 checksum of the arrays (in checkpoints written since it was added), every field of the metadata, and
-every array's name, shape and dtype against what the stored configs make (`registry.init_params`).
+every array's name, shape and dtype against what the stored configs make (`methods.of(cfg).init_params`).
 `check_data` then says whether a dataset is one the policy can be run on: the same image size,
 horizon, torque bound and palette.
 """
@@ -28,9 +28,9 @@ import numpy as np
 
 from oneshot.data import datasets, npz
 from oneshot.maml import optim
-from oneshot.methods import registry
+from oneshot import methods
 from oneshot.policy import network
-from oneshot.training.config import TrainConfig, inner_only
+from oneshot.training.config import TrainConfig
 from oneshot.data.datasets import atomic_write
 from oneshot.policy.network import STRIDE, NetworkConfig
 from oneshot.world.palette import PaletteConfig
@@ -126,7 +126,8 @@ def load(path):
     cfg = _config(path, "config", TrainConfig, meta["config"])
     net_cfg = _config(path, "network", NetworkConfig, network_fields)
     try:
-        registry.check(cfg), inner_only(cfg)
+        method = methods.of(cfg)
+        method.check(net_cfg)
     except ValueError as e:
         raise CheckpointError(f"{path!r}: meta 'config': {e}; {FIX}") from e
     world = meta["world"]
@@ -135,7 +136,7 @@ def load(path):
                               f"network {net_cfg.image_size}; {FIX}")
 
     # 3. Every array: the names, shapes and dtypes the configs make, and nothing else.
-    _check_arrays(path, arrays, cfg, net_cfg)
+    _check_arrays(path, arrays, method, net_cfg)
     params = {k[len("params/"):]: v for k, v in arrays.items() if k.startswith("params/")}
     ema = {k[len("ema/"):]: v for k, v in arrays.items() if k.startswith("ema/")} or None
     return {"params": params, "ema": ema, "adam": optim.state_from_arrays(arrays),
@@ -219,23 +220,20 @@ def _kind_of(default):
     return kinds[type(default)]
 
 
-def _check_arrays(path, arrays, cfg, net_cfg):
+def _check_arrays(path, arrays, method, net_cfg):
     """Raise CheckpointError, naming the first missing, unexpected, or wrongly shaped or typed array,
-    unless `arrays` are exactly the parameters cfg and net_cfg make (`registry.init_params`), their
+    unless `arrays` are exactly the parameters the method and net_cfg make (`method.init_params`), their
     moving average (cfg.ema > 0), and Adam's state of them."""
-    if cfg.method != "random":
+    if method.has_network:
         # The network's own shapes first, which costs nothing: a config claiming a giant network must
         # be refused before init_params below allocates it.
         _compare(path, arrays, {f"params/{k}": (s, None) for k, s in network.param_shapes(net_cfg).items()},
                  only_these=True)
-    if cfg.method == "lstm" and cfg.lstm_units > net_cfg.state_dim:    # the head's state includes the units
-        raise CheckpointError(f"{path!r}: meta 'config' has lstm_units {cfg.lstm_units} but the network's "
-                              f"state_dim is only {net_cfg.state_dim}; {FIX}")
     try:
-        made = registry.init_params(cfg, net_cfg, np.random.default_rng(0))
+        made = method.init_params(net_cfg, np.random.default_rng(0))
     except ValueError as e:                            # e.g. a negative alpha to learn (learn_alpha)
         raise CheckpointError(f"{path!r}: meta 'config': {e}; {FIX}") from e
-    with_ema = (cfg.ema > 0 and cfg.method != "random") or any(k.startswith("ema/") for k in arrays)
+    with_ema = (method.cfg.ema > 0 and method.learns) or any(k.startswith("ema/") for k in arrays)
     expected = {"adam/step": ((), np.dtype(np.int64))}
     for k, v in made.items():
         for prefix in ("params/",) + (("ema/",) if with_ema else ()) + ("adam/m/", "adam/v/"):
@@ -340,8 +338,3 @@ def policy_params(ckpt, raw=False):
     (cfg.ema > 0) and raw is False, else the parameters Adam trained."""
     return ckpt["params"] if raw or ckpt["ema"] is None else ckpt["ema"]
 
-
-def update_ema(ema, params, decay):
-    """Polyak averaging: ema <- decay * ema + (1 - decay) * params, key by key (float32 stays float32)."""
-    d = float(decay)
-    return {k: d * ema[k] + (1.0 - d) * params[k] for k in params}

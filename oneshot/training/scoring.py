@@ -31,9 +31,11 @@ def colour_breakdown(result, trials_per_colour, metadata):
                      for c, rate in sorted(result["per_colour"].items()))
 
 
-def adaptation_gain(params, dataset, alpha=0.001, steps=3, pairs=5, only=None):
+def adaptation_gain(params, dataset, condition, pairs=5):
     """Does adapting on one demo help on ANOTHER demo of the same colour? (Cheap, and far less noisy
     than rollouts.) For each task and j < pairs: adapt on demo j, score eq. (2) on demo j + 1.
+
+    condition(demo) -> adapted parameters: a method's conditioner (`methods.of(cfg).conditioner(params)`).
 
     Returns {"before": mean loss of the unadapted policy on demo j + 1, "after": the same after
     adapting on demo j, "pairs": how many (demo, demo) pairs were scored}.
@@ -50,5 +52,5 @@ def adaptation_gain(params, dataset, alpha=0.001, steps=3, pairs=5, only=None):
         for j in range(pairs):
             adapt_demo, eval_demo = (tuple(a[i, j] for a in demos), tuple(a[i, j + 1] for a in demos))
             before.append(float(imitation.imitation_loss(params, eval_demo)))
-            after.append(float(imitation.imitation_loss(imitation.adapt(params, adapt_demo, alpha, steps, only), eval_demo)))
+            after.append(float(imitation.imitation_loss(condition(adapt_demo), eval_demo)))
     return {"before": sum(before) / len(before), "after": sum(after) / len(after), "pairs": len(before)}

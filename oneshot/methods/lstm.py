@@ -1,64 +1,19 @@
-"""The baselines of paper Section IV, which one-shot imitation by meta-learning is compared with.
+"""The LSTM policy, a baseline of paper Section IV: a recurrent network reads the demonstration, then acts.
 
-All are trained on the same demonstrations with the same behavioural-cloning loss (eq. 2), the same
-meta-batches of (adapt, evaluate) demo pairs, the same convolutional trunk and fully connected widths
-as MIL's policy (`oneshot.policy.network`). What differs is how the ONE demonstration of a new task enters:
-
-    contextual  the demonstration's final image, stacked on the current image as 3 more input
-                channels (the paper says "the final image of the demonstration" is the input; how it
-                enters the network it does not say: we stack it, so the first convolution can compare
-                the two images pixel by pixel)
-    lstm        a recurrent network reads the demonstration, frame by frame (the trunk's features of
-                the frame, the robot state and the demonstrated action); its final hidden state is
-                appended to the current observation's features and the state, and the fully
-                connected layers output the action (Duan et al. 2017, "One-Shot Imitation Learning";
-                the paper: an LSTM of 512 units on the trunk's final-layer features)
-    random      Gaussian torques of a fixed standard deviation, ignoring everything
-
-The policies act in network units, like MIL's (torques divided by the bound). The batched losses
-take demos with a leading task axis B: adapt = the demonstrations that condition the policy,
-evaluate = other demonstrations of the same tasks that it is scored on, as in meta-training.
+A recurrent network reads the demonstration frame by frame (the trunk's features of the frame, the robot
+state and the demonstrated action); its final hidden state is appended to the current observation's
+features and the state, and the fully connected layers output the action (Duan et al. 2017, "One-Shot
+Imitation Learning"; the paper: an LSTM of 512 units on the trunk's final-layer features). Trained on
+the same demonstrations, loss (eq. 2), meta-batches, trunk and widths as MIL's policy.
 """
 import autograd.numpy as anp
 import numpy as np
 
-from oneshot.maml import imitation
+from oneshot.maml import batched
+from oneshot.methods.base import Method
+from oneshot.policy import network
 from oneshot.policy.layers import add_bias, concat_last, matmul
-from oneshot.policy.network import NetworkConfig, forward, head, init_params, trunk
-
-
-# ----------------------------------------------------------------------------------------------------
-# Contextual policy: the demonstration's final image as input
-# ----------------------------------------------------------------------------------------------------
-
-
-def contextual_images(images, context):
-    """images (..., T, H, W, 3) and context (..., H, W, 3) -> (..., T, H, W, 6): the context image
-    (the demo's final frame) stacked on every frame as 3 more channels."""
-    context = np.broadcast_to(context[..., None, :, :, :], images.shape)
-    return np.concatenate([images, context], axis=-1)
-
-
-def contextual_loss(params, adapt, evaluate):
-    """Mean over the B tasks of eq. (2) on the evaluate demo, the adapt demo's final image as context.
-
-    params: `init_params(NetworkConfig(image_channels=6, ...))`. adapt, evaluate: (images (B, T, H, W,
-    3), states (B, T, 6), actions (B, T, 2)) in network units. Returns a scalar.
-    """
-    images = contextual_images(evaluate[0], adapt[0][:, -1])
-    return imitation.imitation_loss(params, (images, evaluate[1], evaluate[2])) / len(images)
-
-
-def contextual_policy(params, demo):
-    """The contextual policy conditioned on one demo (images (T, H, W, 3), ...): a function
-    (image (1, H, W, 3), state (1, 6), scene) -> action (1, 2) for `imitation.rollout`."""
-    context = demo[0][-1]
-    return lambda image, state, scene: forward(params, contextual_images(image, context), state)
-
-
-# ----------------------------------------------------------------------------------------------------
-# LSTM policy: reads the demonstration, then acts
-# ----------------------------------------------------------------------------------------------------
+from oneshot.policy.network import NetworkConfig, head, init_params, trunk
 
 
 def lstm_network_config(net_cfg, units):
@@ -135,12 +90,29 @@ def lstm_policy(params, demo):
     return lambda image, state, scene: lstm_act(params, summary, image[None], state[None])[0]
 
 
-# ----------------------------------------------------------------------------------------------------
-# Random policy
-# ----------------------------------------------------------------------------------------------------
+class LSTM(Method):
+    """The LSTM baseline: it reads the demonstration, then acts; `cfg.lstm_units` wide."""
 
+    name = "lstm"
 
-def random_policy(std, rng):
-    """Gaussian torques: a function (image, state, scene) -> action (1, 2) ~ N(0, std^2), network units
-    (std in units of the torque bound: std = 1 is the bound itself). rng: np.random.Generator."""
-    return lambda image, state, scene: std * rng.standard_normal((1, 2))
+    def network_config(self, image_size):
+        return lstm_network_config(super().network_config(image_size), self.cfg.lstm_units)
+
+    def init_params(self, net_cfg, rng):
+        return lstm_init_params(net_cfg, self.cfg.lstm_units, rng)
+
+    def check(self, net_cfg):
+        if self.cfg.lstm_units > net_cfg.state_dim:           # the head's state includes the units
+            raise ValueError(f"lstm_units is {self.cfg.lstm_units} but the network's state_dim is only "
+                             f"{net_cfg.state_dim}")
+
+    def meta_gradient(self, params, adapt, evaluate, pool=None):
+        return batched.value_and_grads(lstm_loss, params, adapt, evaluate)
+
+    def meta_gradient_flops(self, net_cfg, T, tasks):
+        """The trunk and head on the evaluate demo and the trunk again on the adapt demo, forward and
+        backward: 6 forward passes per task (the LSTM's own products are not counted)."""
+        return tasks * 6 * network.count_flops(net_cfg, T)
+
+    def conditioner(self, params, seed=0):
+        return lambda demo: lstm_policy(params, demo)

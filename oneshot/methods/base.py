@@ -1,0 +1,85 @@
+"""What every method of paper Section IV's comparison is: one object behind one small interface.
+
+    method = methods.of(cfg)                          # the method cfg.method names, bound to its config
+    net_cfg = method.network_config(image_size)       # its network (stored in its checkpoints)
+    params = method.init_params(net_cfg, rng)         # its parameters: a dict of arrays
+    loss, grads = method.meta_gradient(params, adapt, evaluate, pool)   # what it learns from a meta-batch
+    condition = method.conditioner(params, seed)      # what ONE demonstration makes of it:
+    policy = condition(demo)                          #   a policy for `imitation.rollout`
+
+Training, evaluation, checkpoints, the experiments and the benchmark ask the object; none of them tests
+a method's name. A method that is not trained by gradient (`learns = False`, the random policy) is
+fitted by `fit` instead. Adding a method is one module with a subclass and one line in the registry
+(`oneshot.methods`).
+"""
+from oneshot.policy import network
+from oneshot.policy.network import NetworkConfig
+
+
+class Method:
+    """A method of the comparison, bound to `cfg` (a `training.config.TrainConfig`). The defaults are
+    those of a method that learns by gradient on the shared trunk of `oneshot.policy.network`."""
+
+    name = None           # the registry's key: what `TrainConfig.method` says
+    adapts = False        # does one demonstration change the parameters (eq. 1)? Then `unadapted` exists
+    learns = True         # trained by meta-gradient; False: `fit` chooses its parameters instead
+    has_network = True    # are its parameters a network's (checked against `network.param_shapes`)?
+
+    def __init__(self, cfg):
+        self.cfg = cfg
+
+    def __repr__(self):
+        return f"{type(self).__name__}({self.cfg.method!r})"
+
+    # --- its policy ---------------------------------------------------------------------------------
+
+    def network_config(self, image_size):
+        """The NetworkConfig of its policy for images of `image_size` pixels (stored in checkpoints)."""
+        return NetworkConfig(image_size=image_size, bias_transform=self.cfg.bias_transform,
+                             feature_points=self.cfg.feature_points)
+
+    def init_params(self, net_cfg, rng):
+        """Initial parameters: a dict of float32 arrays. rng: np.random.Generator."""
+        return network.init_params(net_cfg, rng)
+
+    def check(self, net_cfg):
+        """Raise ValueError if the config and the network cannot belong together (read checkpoints)."""
+
+    # --- meta-training ------------------------------------------------------------------------------
+
+    @property
+    def shards(self):
+        """Processes that share each meta-gradient (`oneshot.maml.shards`): 1 unless the method splits frames."""
+        return 1
+
+    def make_pool(self):
+        """The worker processes its meta-gradient needs (None: this process alone)."""
+        return None
+
+    def meta_gradient(self, params, adapt, evaluate, pool=None):
+        """(loss, grads) of one meta-batch: eq. (2) on the evaluate demos, given the adapt demos.
+        adapt, evaluate: (images (B, T, H, W, 3), states (B, T, 6), actions (B, T, 2)), network units."""
+        raise NotImplementedError(f"{type(self).__name__} does not learn by gradient; use fit")
+
+    def meta_gradient_flops(self, net_cfg, T, tasks):
+        """Matrix-product operations of one meta-gradient over `tasks` tasks of T frames (the benchmark)."""
+        raise NotImplementedError
+
+    def fit(self, params, dataset, trials, seed):
+        """Parameters chosen without gradients (learns = False): (params, {choice: score})."""
+        raise NotImplementedError(f"{type(self).__name__} learns by gradient; use meta_gradient")
+
+    # --- meta-test: what one demonstration makes of it ------------------------------------------------
+
+    def conditioner(self, params, seed=0):
+        """condition(demo) -> policy (a parameter dict or a function, as `imitation.act` takes): what
+        ONE demonstration (network units) makes of the trained policy. seed: for methods that draw."""
+        raise NotImplementedError
+
+    def unadapted(self, params):
+        """condition(demo) -> the policy without adaptation (only for methods that adapt)."""
+        raise ValueError(f"the {self.name!r} method does not adapt to a demonstration; it has no unadapted policy")
+
+    def notes(self, params):
+        """What a Figure 2 row records about the trained parameters beyond its score (a dict)."""
+        return {}

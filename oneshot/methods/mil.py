@@ -1,0 +1,67 @@
+"""MIL, the method of the paper (Sections II-III): MAML on behavioural cloning.
+
+A meta-batch teaches it by eq. (1) on each task's adapt demo and eq. (2) on its evaluate demo, through
+the second-order meta-gradient; at meta-test ONE demonstration makes the adapted parameters (eq. 1).
+Which parameters adapt, how many steps and how large are `TrainConfig` fields, gathered into one
+`inner.InnerLoop` that training and meta-test share.
+"""
+from oneshot.maml import imitation, inner, shards
+from oneshot.maml.imitation import imitation_loss
+from oneshot.methods.base import Method
+from oneshot.policy import network
+
+# TrainConfig.inner_params -> `inner.inner_update`'s `only`: which parameters eq. (1) adapts.
+INNER_PARAMS = {"all": None, "conv": ("conv",), "conv0": ("conv0_",)}
+
+
+def inner_loop(cfg):
+    """The `inner.InnerLoop` of a config: every option of eq. (1), for training and meta-test alike."""
+    if cfg.inner_params not in INNER_PARAMS:
+        raise ValueError(f"inner_params must be one of {sorted(INNER_PARAMS)}; got {cfg.inner_params!r}")
+    return inner.InnerLoop(alpha=cfg.alpha, steps=cfg.inner_steps, first_order=cfg.first_order,
+                           only=INNER_PARAMS[cfg.inner_params])
+
+
+class MIL(Method):
+    """MAML (eq. 1) with behavioural cloning (eq. 2) as its loss."""
+
+    name = "mil"
+    adapts = True
+
+    def __init__(self, cfg):
+        super().__init__(cfg)
+        self.inner = inner_loop(cfg)
+
+    def init_params(self, net_cfg, rng):
+        """The network's parameters, plus learnt inner step sizes (all `alpha`) if cfg.learn_alpha."""
+        params = network.init_params(net_cfg, rng)
+        if self.cfg.learn_alpha:
+            params.update(inner.init_step_sizes(params, self.cfg.alpha, self.inner.only))
+        return params
+
+    @property
+    def shards(self):
+        return self.cfg.shards
+
+    def make_pool(self):
+        return shards.make_pool(self.cfg.shards)
+
+    def meta_gradient(self, params, adapt, evaluate, pool=None):
+        """The second-order meta-gradient, each of cfg.shards processes on its block of frames."""
+        return shards.meta_gradient(params, adapt, evaluate, (imitation_loss, self.inner), self.cfg.shards, pool)
+
+    def meta_gradient_flops(self, net_cfg, T, tasks):
+        """3 (3 s + 1) forward passes per task for s inner steps: each inner step records a forward and a
+        backward pass (~3 forward passes), the outer loss one more, and the meta-gradient's backward pass
+        costs about twice the recorded forward graph. First order: the inner steps are not recorded, so
+        3 s + 3. Matrix products only (`network.count_flops`)."""
+        s = self.inner.steps
+        passes = 3 * s + 3 if self.inner.first_order else 3 * (3 * s + 1)
+        return tasks * passes * network.count_flops(net_cfg, T)
+
+    def conditioner(self, params, seed=0):
+        """condition(demo) -> the adapted parameters: eq. (1) on the one demo."""
+        return lambda demo: imitation.adapt(params, demo, **self.inner.options())
+
+    def unadapted(self, params):
+        return lambda demo: params

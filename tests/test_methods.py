@@ -1,0 +1,134 @@
+"""Methods as objects (oneshot/methods/): every method of the registry goes through the whole package
+(train -> checkpoint -> resume -> evaluate) behind the one interface, a new method needs nothing but
+its own module and a registry line, nothing outside the methods' modules tests a method's name, and
+eq. (1) is one inner loop: training's inner update and meta-test's give the same adapted parameters
+for every option."""
+import dataclasses
+import inspect
+import itertools
+import json
+import pathlib
+import re
+
+import numpy as np
+import pytest
+
+import oneshot
+from oneshot import evaluate, methods
+from oneshot.maml import batched, imitation, inner
+from oneshot.maml.inner import InnerLoop
+from oneshot.methods.base import Method
+from oneshot.policy import network
+from oneshot.training import checkpoint, config, run_folder
+
+
+@pytest.fixture
+def smoke(tiny_datasets):
+    train_path, heldout_path = tiny_datasets
+    return dataclasses.replace(config.PROFILES["smoke"], train_data=train_path, heldout_data=heldout_path,
+                               iterations=6, checkpoint_every=100, eval_trials=1)
+
+
+def _same(p, q):
+    return set(p) == set(q) and all(np.array_equal(p[k], q[k]) for k in p)
+
+
+@pytest.mark.parametrize("name", list(methods.REGISTRY))
+def test_every_method_of_the_registry_trains_checkpoints_resumes_and_evaluates(name, smoke, tmp_path):
+    cfg = dataclasses.replace(smoke, method=name, lstm_units=4, random_stds=(0.25, 1.0))
+    whole = run_folder.train(cfg, tmp_path / "whole", progress=False)
+    run_folder.train(cfg, tmp_path / "split", progress=False, stop_after=2)          # "killed" at iteration 2
+    resumed = run_folder.train(cfg, tmp_path / "split", resume=True, progress=False)
+    assert _same(whole, resumed), name                                             # resume is exact
+    ckpt = checkpoint.load(tmp_path / "split" / "checkpoint.npz")
+    assert ckpt["config"] == cfg and _same(ckpt["params"], whole)
+    method = methods.of(cfg)
+    assert ckpt["iteration"] == cfg.iterations and (ckpt["ema"] is None) == (not method.learns or cfg.ema == 0)
+    results = evaluate.main([str(tmp_path / "split" / "checkpoint.npz"), "--heldout", cfg.heldout_data, "--train", "",
+                             "--trials", "2"] + (["--unadapted"] if method.adapts else []))
+    assert results["heldout"]["trials"] == 4 and 0 <= results["heldout"]["successes"] <= 4
+    assert ("heldout_unadapted" in results) == ("adaptation_gain" in results) == method.adapts
+
+
+class Imitator(Method):
+    """A method the package has never seen: behavioural cloning that ignores the demonstration."""
+
+    name = "imitator"
+
+    def meta_gradient(self, params, adapt, evaluate, pool=None):
+        return batched.value_and_grads(lambda p, e: imitation.imitation_loss(p, e) / len(e[0]), params, evaluate)
+
+    def meta_gradient_flops(self, net_cfg, T, tasks):
+        return tasks * 3 * network.count_flops(net_cfg, T)
+
+    def conditioner(self, params, seed=0):
+        return lambda demo: params
+
+
+def test_a_new_method_needs_only_its_module_and_a_registry_line(smoke, tmp_path, monkeypatch):
+    monkeypatch.setitem(methods.REGISTRY, "imitator", Imitator)
+    cfg = dataclasses.replace(smoke, method="imitator")
+    params = run_folder.train(cfg, tmp_path / "run", progress=False)
+    ckpt = checkpoint.load(tmp_path / "run" / "checkpoint.npz")
+    assert _same(ckpt["params"], params) and ckpt["config"].method == "imitator"
+    results = evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--heldout", cfg.heldout_data, "--train", "",
+                             "--trials", "1", "--method", "imitator"])
+    assert results["heldout"]["trials"] == 2 and "adaptation_gain" not in results
+    with pytest.raises(SystemExit):                                   # it does not adapt: no unadapted policy
+        evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--heldout", cfg.heldout_data, "--unadapted"])
+
+
+def test_nothing_outside_the_methods_modules_tests_a_methods_name():
+    """Code asks the method object; it never branches on `cfg.method == "..."` (or `!=`, `in (...)`)."""
+    package = pathlib.Path(oneshot.__file__).parent
+    pattern = re.compile(r"""\.method\s*(==|!=|\bin\b|\bnot in\b)\s*[("'\[]""")
+    found = [f"{path.relative_to(package)}:{n}: {line.strip()}"
+             for path in package.rglob("*.py") if "methods" not in path.relative_to(package).parts
+             for n, line in enumerate(path.read_text().splitlines(), 1) if pattern.search(line)]
+    assert not found, "tests of a method's name outside oneshot/methods/:\n" + "\n".join(found)
+    assert pattern.search('if cfg.method == "mil":') and pattern.search("cfg.method in ('lstm', 'x')")  # it can fail
+
+
+# ----- one inner loop -----------------------------------------------------------------------------
+
+# Every option of eq. (1) (the fields of InnerLoop, which are inner_update's keyword options) and the
+# values the test tries: a new option must be added here, or the first test below fails.
+OPTIONS = {"alpha": [0.0, 0.05], "steps": [0, 1, 2], "first_order": [False, True],
+           "only": [None, ("conv",), ("conv0_",), ("fc",)]}
+
+
+def test_inner_loop_carries_exactly_the_options_of_inner_update():
+    keyword = [p.name for p in inspect.signature(inner.inner_update).parameters.values()
+               if p.default is not inspect.Parameter.empty and p.kind is not inspect.Parameter.KEYWORD_ONLY]
+    assert [f.name for f in dataclasses.fields(InnerLoop)] == keyword == list(OPTIONS)
+
+
+@pytest.mark.parametrize("learnt", [False, True], ids=["alpha", "learnt step sizes"])
+def test_training_and_meta_test_adapt_to_the_same_parameters_for_every_option(rng, learnt):
+    """Training's inner update (`batched.adapt_batch`: a meta-batch at once, its own gradient route) and
+    meta-test's (`imitation.adapt` on one demo, what `methods.MIL.conditioner` does) are eq. (1) once:
+    for every combination of options, task b's adapted parameters are the same numbers."""
+    net_cfg = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,), bias_transform=2, feature_points=True)
+    base = network.init_params(net_cfg, rng, np.float64)
+    B, T = 3, 4
+    demos = (rng.random((B, T, 8, 8, 3)), rng.normal(size=(B, T, 6)), rng.normal(size=(B, T, 2)))
+    for values in itertools.product(*OPTIONS.values()):
+        loop = InnerLoop(**dict(zip(OPTIONS, values)))
+        params = dict(base, **inner.init_step_sizes(base, 0.03, loop.only)) if learnt else base
+        trained = batched.adapt_batch(params, demos, imitation.imitation_loss, loop)
+        for b in range(B):
+            tested = imitation.adapt(params, tuple(a[b] for a in demos), **loop.options())
+            assert trained.keys() == tested.keys(), loop
+            for k in tested:
+                np.testing.assert_allclose(trained[k][b] if np.ndim(trained[k]) > np.ndim(base[k]) else trained[k],
+                                           tested[k], rtol=1e-10, atol=1e-12, err_msg=f"{loop} {k}")
+
+
+def test_the_mil_method_trains_and_tests_with_the_inner_loop_of_its_config():
+    cfg = dataclasses.replace(config.PROFILES["default"], inner_steps=2, alpha=0.1, first_order=True)
+    assert methods.of(cfg).inner == InnerLoop(0.1, 2, True, ("conv0_",))
+    with pytest.raises(ValueError, match="inner_params must be one of"):
+        methods.of(dataclasses.replace(cfg, inner_params="fc9"))
+    with pytest.raises(ValueError, match="alpha must be finite and >= 0"):
+        InnerLoop(alpha=-1.0)
+    assert json.dumps(InnerLoop(0.1, np.int64(2)).options()) == '{"alpha": 0.1, "steps": 2, "first_order": false, "only": null}'
