@@ -6,7 +6,7 @@ One-shot visual imitation, end to end (paper Sections III-IV):
      one step on its first convolution layer, docs/results.md);
   3. the adapted policy acts in new scenes of that colour (new positions, new distractors).
 Prints the one-shot success rate (with a 95% interval) and the unadapted policy's for contrast, and
-writes two pictures to DIR, the target ringed in every frame:
+writes two pictures to DIR, the target ringed and the arm's base and hand marked in every frame:
   one_shot.png        for 4 held-out colours, the demo above the adapted policy's trial in a new scene,
                       each row labelled with the colour and the trial's outcome (a failure among them if
                       any trial failed);
@@ -28,13 +28,14 @@ from oneshot.expert import controller
 from oneshot.maml import imitation
 from oneshot.tools import cli, viz
 from oneshot.training import checkpoint
-from oneshot.world import palette, render
+from oneshot.world import palette
 from oneshot.training.scoring import wilson_interval
 from oneshot.world.reach import ReachWorld, WorldConfig, closest_object
 
 PRETRAINED = os.path.join(os.path.dirname(__file__), "pretrained", "mil_default.npz")
 SHOWN_COLOURS = 4           # held-out colours in the film strip, one trial each
-NEAR_MISS, DISTRACTOR = "missed: near miss", "missed: went to a distractor"    # the ways a trial fails
+# The ways a trial fails, as `outcome` tells them apart.
+NEAR_MISS, DISTRACTOR, ASTRAY = "missed: near miss", "missed: went to a distractor", "missed: near no disc"
 
 
 def shown_trials(successes, n_shown=SHOWN_COLOURS):
@@ -68,51 +69,51 @@ def contrast_trial(adapted, unadapted):
     return 0, 0
 
 
-def outcome(trial):
-    """"reached", "missed: near miss" (closest to the target over the final fifth, not within reach) or
-    "missed: went to a distractor", as `oneshot.maml.imitation.one_shot_success` counts failures."""
+def outcome(trial, cfg=WorldConfig()):
+    """A trial's caption: "reached" (paper Section IV success), or how it missed, judged like success on
+    the final fifth of the episode (`oneshot.world.reach.closest_object`): NEAR_MISS if the hand came
+    within half cfg.min_separation (0.06 m) of the target's centre, DISTRACTOR if of a distractor's, else
+    ASTRAY (it stopped between or beyond the discs). Within that radius the hand is near one disc at most.
+    (`oneshot.maml.imitation.one_shot_success` counts failures by the closest disc alone, however far.)
+    trial: {"success", "end_effector" (T, 2) m, "scene"}; cfg: the WorldConfig of the trial's world.
+    """
     if trial["success"]:
         return "reached"
-    closest, _ = closest_object(trial["end_effector"], trial["scene"].positions)
+    closest, distance = closest_object(trial["end_effector"], trial["scene"].positions)
+    if distance > cfg.min_separation / 2:
+        return ASTRAY
     return NEAR_MISS if closest == trial["scene"].target else DISTRACTOR
-
-
-def target_pixels(scene, cfg):
-    """The scene's target centre in frame pixels (x, y), and a ring radius in frame pixels (twice the disc's)."""
-    centre = render.world_to_pixels(scene.target_position, cfg.arena_half_width, cfg.image_size)
-    return centre, 2 * cfg.object_radius * cfg.image_size / (2 * cfg.arena_half_width)
 
 
 def film_strip(cfg, pairs):
     """The demo's film strip: for each (demo, trial) pair a row for the demonstration and, unless the trial
     is None, a row for the adapted policy's trial; each row labelled with the target colour's name and
-    (trials) the outcome, the target ringed in every frame. cfg: the WorldConfig. Returns a PIL image."""
+    (trials) the outcome, the target ringed and the arm's base and hand marked in every frame
+    (`viz.episode_marks`). cfg: the WorldConfig. Returns a PIL image."""
     rgb = palette.palette_rgb(cfg.palette)
-    rows, labels, targets, swatches = [], [], [], []
+    episodes, labels, swatches = [], [], []
     for demo, trial in pairs:
         colour = demo["scene"].target_colour
         name = palette.colour_name(colour, cfg.palette)
         for episode, what in ((demo, "demonstration"), (trial, "adapted, new scene")):
             if episode is not None:
-                rows.append(episode["images"])
-                labels.append(f"{name}\n{what}" + (f"\n{outcome(episode)}" if episode is trial else ""))
-                targets.append(target_pixels(episode["scene"], cfg)[0])
+                episodes.append(episode)
+                labels.append(f"{name}\n{what}" + (f"\n{outcome(episode, cfg)}" if episode is trial else ""))
                 swatches.append(rgb[colour])
-    radius = target_pixels(pairs[0][0]["scene"], cfg)[1]
-    return viz.filmstrip(rows, labels=labels, targets=targets, radius=radius, swatches=swatches,
-                         group=2 if any(trial is not None for _, trial in pairs) else 1)
+    return viz.filmstrip([e["images"] for e in episodes], labels=labels, swatches=swatches,
+                         group=2 if any(trial is not None for _, trial in pairs) else 1,
+                         **viz.episode_marks(episodes, cfg))
 
 
 def animation(cfg, demo, adapted, unadapted):
     """The demo's animation: the demonstration, and the policy before and after adapting in one new scene,
-    side by side, the targets ringed. cfg: the WorldConfig. Returns T PIL images."""
-    demo_target, radius = target_pixels(demo["scene"], cfg)
-    trial_target, _ = target_pixels(adapted["scene"], cfg)        # the same scene before and after adapting
+    side by side, the targets ringed and the arm's base and hand marked. cfg: the WorldConfig. Returns
+    T PIL images."""
     name = palette.colour_name(demo["scene"].target_colour, cfg.palette)
-    titles = [f"demonstration\n{name}", f"before adapting\n{outcome(unadapted)}",
-              f"after adapting\n{outcome(adapted)}"]
-    return viz.side_by_side([demo["images"], unadapted["images"], adapted["images"]], titles,
-                            targets=[demo_target, trial_target, trial_target], radius=radius)
+    titles = [f"demonstration\n{name}", f"before adapting\n{outcome(unadapted, cfg)}",
+              f"after adapting\n{outcome(adapted, cfg)}"]
+    episodes = [demo, unadapted, adapted]          # the same new scene before and after adapting
+    return viz.side_by_side([e["images"] for e in episodes], titles, **viz.episode_marks(episodes, cfg))
 
 
 def main(argv=None):
@@ -182,7 +183,8 @@ def main(argv=None):
 
     # 4. Pictures: a film strip of demos and adapted trials (a failure among them if there was one),
     #    and one scene played by the demo, the unadapted and the adapted policy.
-    outcomes, unadapted_outcomes = (np.array([[outcome(trials[i, j][k]) for j in range(args.trials)]
+    outcomes, unadapted_outcomes = (np.array([[outcome(trials[i, j][k], world.config)
+                                               for j in range(args.trials)]
                                               for i in range(len(demos))]) for k in (0, 1))   # (colours, trials)
     shown = shown_trials(outcomes == "reached", SHOWN_COLOURS)
     strip = os.path.join(args.out, "one_shot.png")

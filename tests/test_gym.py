@@ -1,18 +1,31 @@
-"""The Gymnasium environment (oneshot.world.gym) and the world guards it relies on (oneshot.world.reach)."""
+"""The Gymnasium environment (oneshot.world.gym): Gymnasium's conventions (registration, make, make_vec,
+check_env, seeding, TimeLimit), the goal in the observation, what render() shows, and hostile inputs."""
+import os
 import subprocess
 import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from oneshot.world import arm
-from oneshot.world.reach import ReachWorld, Scene, is_success
+import oneshot
+from oneshot.world import arm, palette, render
+from oneshot.world.reach import ReachWorld, Scene, WorldConfig, is_success
 
 gymnasium = pytest.importorskip("gymnasium")    # the optional extra: pip install ".[gym]"
 from gymnasium.utils.env_checker import check_env
 
-from oneshot.world.gym import ENV_ID, ReachEnv
+from oneshot.world.gym import ENV_ID, RENDER_SCALE, ReachEnv
+
+CHECKOUT = str(Path(oneshot.__file__).resolve().parent.parent)   # where this test imports oneshot from
+WORLD_KEYS = ("image", "joint_angles", "joint_velocities", "end_effector")
+
+
+def python(code):
+    """Run `code` in a fresh interpreter that finds this checkout's oneshot; returns the CompletedProcess."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (CHECKOUT, os.environ.get("PYTHONPATH")) if p))
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=CHECKOUT)
 
 
 def reach_torque(obs, q_goal):
@@ -78,7 +91,7 @@ def test_an_episode_truncates_at_the_horizon_and_reports_the_papers_success():
             env.step(np.zeros(2))
 
 
-def test_the_observation_is_the_worlds_for_the_same_scene():
+def test_the_observation_is_the_worlds_for_the_same_scene_plus_the_goal():
     env = ReachEnv(target_colour=5)
     obs, info = env.reset(seed=3)
     scene = Scene(info["object_colours"], info["object_positions"],
@@ -87,11 +100,30 @@ def test_the_observation_is_the_worlds_for_the_same_scene():
     world_obs, _ = world.reset(options={"scene": scene})
     actions = np.random.default_rng(0).uniform(-0.5, 0.5, (20, 2))
     for a in actions:
-        assert all(np.array_equal(obs[k], world_obs[k]) and obs[k].dtype == world_obs[k].dtype for k in obs)
+        assert set(obs) == set(WORLD_KEYS) | {"target_rgb"}
+        assert all(np.array_equal(obs[k], world_obs[k]) and obs[k].dtype == world_obs[k].dtype for k in WORLD_KEYS)
+        assert obs["target_rgb"].tolist() == palette.palette_rgb()[5].tolist()
         assert obs in env.observation_space
         obs, reward, *_ = env.step(a)
         world_obs, world_reward, *_ = world.step(a)
         assert reward == world_reward
+
+
+def test_the_goal_in_the_observation_names_the_disc_to_reach_in_the_image():
+    """With a random target per episode, obs["target_rgb"] is the colour of the image's pixel at the
+    target's centre, and of no other disc's: an agent can tell from the observation which disc to reach."""
+    env = gymnasium.make(ENV_ID)                       # target_colour=None: a random colour per episode
+    space = env.observation_space["target_rgb"]
+    assert isinstance(space, gymnasium.spaces.Box) and space.shape == (3,) and space.dtype == np.uint8
+    goals = set()
+    for seed in range(6):
+        obs, info = env.reset(seed=seed)
+        centres = np.round(render.world_to_pixels(info["object_positions"], 0.22, 32) - 0.5).astype(int)
+        shown = [tuple(obs["image"][y, x]) for x, y in centres]               # each disc's centre pixel
+        target = int(np.flatnonzero(info["object_colours"] == info["target_colour"])[0])
+        assert [c == tuple(obs["target_rgb"]) for c in shown] == [i == target for i in range(len(shown))]
+        goals.add(tuple(obs["target_rgb"]))
+    assert len(goals) > 3                              # the goal changes from episode to episode
 
 
 def test_observations_stay_in_the_space_under_torques_that_pump_in_energy():
@@ -120,17 +152,31 @@ def test_writing_into_info_or_obs_changes_nothing_in_the_env():
         assert info["success"] is False
 
 
-def test_render_before_reset_raises_and_rgb_array_renders_the_observation():
+def test_render_before_reset_raises_and_rgb_array_marks_the_target_base_and_hand():
     with pytest.raises(RuntimeError, match=r"call reset\(\) before render\(\)"):
         ReachWorld().render()
     env = ReachEnv(render_mode="rgb_array", image_size=64)
     with pytest.raises(RuntimeError, match=r"call reset\(\) before render\(\)"):
         env.render()
-    obs, _ = env.reset(seed=1)
-    obs, *_ = env.step(np.array([0.5, 0.5]))
-    frame = env.render()
-    assert frame.shape == (64, 64, 3) and frame.dtype == np.uint8
-    assert np.array_equal(frame, obs["image"])
+    obs, info = env.reset(seed=1)
+    for _ in range(3):
+        obs, *_ = env.step(np.array([0.5, 0.5]))
+    frame, s = env.render(), RENDER_SCALE
+    assert frame.shape == (64 * s, 64 * s, 3) and frame.dtype == np.uint8
+    plain = np.repeat(np.repeat(obs["image"], s, axis=0), s, axis=1)      # the observation, enlarged
+    marked = (frame != plain).any(axis=-1)
+    assert (frame[marked] == 255).all()                                    # marks are white, drawn over it
+    ys, xs = np.nonzero(marked)
+    pixels = np.stack([xs + 0.5, ys + 0.5], -1) / s                        # in the observation's pixels
+
+    def near(point_m, radius_px):
+        return np.linalg.norm(pixels - render.world_to_pixels(point_m, 0.22, 64), axis=-1) <= radius_px
+
+    ring_r = 2 * 0.025 * 64 / 0.44                                          # twice the disc's radius, 7.3 px
+    ring = near(info["target_position"], ring_r + 0.5) & ~near(info["target_position"], ring_r - 1)
+    base, hand = near(np.zeros(2), 2.5), near(obs["end_effector"], 3.0)
+    assert ring.sum() > 100 and base.sum() > 10 and hand.sum() > 10        # each mark is there ...
+    assert (ring | base | hand).all()                                      # ... and nothing else
     no_render = ReachEnv()
     no_render.reset(seed=1)
     assert no_render.render() is None
@@ -148,7 +194,128 @@ def test_bad_arguments_are_rejected_with_a_message_naming_the_fix():
 
 
 def test_without_gymnasium_the_import_error_says_how_to_install_it():
-    code = "import sys; sys.modules['gymnasium'] = None; import oneshot.world.gym"
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    result = python("import sys; sys.modules['gymnasium'] = None; import oneshot.world.gym")
     assert result.returncode != 0
     assert 'ImportError: oneshot.world.gym needs Gymnasium; install the extra: pip install ".[gym]"' in result.stderr
+
+
+def test_import_oneshot_registers_the_env_and_make_imports_oneshot_itself():
+    """Gymnasium's conventions, each in a fresh interpreter: make("oneshot/Reach-v0") after `import
+    oneshot` alone (as docs/world.md writes it), and make("oneshot:oneshot/Reach-v0") with no import."""
+    after_import = python(
+        "import sys, gymnasium, oneshot\n"
+        "assert 'oneshot.world.gym' not in sys.modules       # registration imports nothing of the env\n"
+        f"env = gymnasium.make({ENV_ID!r}, target_colour=9)\n"
+        "print(env.reset(seed=0)[1]['target_colour'], type(env.unwrapped).__module__)")
+    assert after_import.returncode == 0, after_import.stderr
+    assert after_import.stdout.split() == ["9", "oneshot.world.gym"]
+    without_import = python(
+        "import sys, gymnasium\n"
+        "assert 'oneshot' not in sys.modules\n"
+        f"env = gymnasium.make('oneshot:{ENV_ID}')\n"
+        "print(env.spec.id, env.spec.max_episode_steps, sorted(env.reset(seed=0)[0]))")
+    assert without_import.returncode == 0, without_import.stderr
+    assert without_import.stdout.startswith(f"{ENV_ID} 20 ['end_effector', 'image', 'joint_angles',")
+
+
+@pytest.mark.parametrize("horizon", [20, 10])
+def test_max_episode_steps_is_the_horizon_and_timelimit_agrees_with_the_env(horizon):
+    assert gymnasium.spec(ENV_ID).max_episode_steps == WorldConfig().horizon == ReachEnv().world.config.horizon == 20
+    kwargs = {} if horizon == 20 else {"horizon": horizon, "max_episode_steps": horizon}
+    env = gymnasium.make(ENV_ID, **kwargs)
+    assert env.spec.max_episode_steps == env.unwrapped.world.config.horizon == horizon
+    for _ in range(2):                                 # and again after the TimeLimit's own reset
+        env.reset(seed=0)
+        for t in range(horizon):
+            _, _, terminated, truncated, info = env.step(np.zeros(2))
+            assert terminated is False and truncated is (t == horizon - 1)
+        assert info["success"] is False                # judged (a motionless arm fails) at the last step
+        assert env.unwrapped.world.t == horizon        # the env itself ended the episode there
+
+
+@pytest.mark.parametrize("mode", ["vector_entry_point", "sync", "async"])
+def test_make_vec_steps_the_same_episodes_as_single_envs(mode):
+    """Every vectorization mode: env i is reset with seed + i (Gymnasium's rule), so it shows the scene a
+    single ReachEnv shows for that seed; all truncate together at the horizon, and reset next step."""
+    envs = gymnasium.make_vec(ENV_ID, num_envs=2, vectorization_mode=mode)
+    try:
+        assert envs.spec.kwargs["vectorization_mode"] == mode
+        obs, info = envs.reset(seed=3)
+        assert obs in envs.observation_space and obs["target_rgb"].shape == (2, 3)
+        actions = np.random.default_rng(0).uniform(-0.5, 0.5, (20, 2, 2))
+        singles = [ReachEnv() for _ in range(2)]
+        for i, single in enumerate(singles):
+            single_obs, single_info = single.reset(seed=3 + i)
+            assert all(np.array_equal(obs[k][i], single_obs[k]) for k in single_obs)
+            assert info["target_colour"][i] == single_info["target_colour"]
+        for t in range(20):
+            obs, reward, terminated, truncated, info = envs.step(actions[t])
+            expected = [single.step(actions[t, i]) for i, single in enumerate(singles)]
+            assert reward.tolist() == [e[1] for e in expected]
+            assert truncated.tolist() == [t == 19] * 2 and not terminated.any()
+        assert info["success"].tolist() == [e[4]["success"] for e in expected]
+        envs.step(actions[0])                          # Gymnasium's next-step autoreset: a new episode
+        assert envs.step(actions[0])[3].tolist() == [False, False]
+    finally:
+        envs.close()
+
+
+def test_the_vector_entry_point_refuses_a_timelimit_other_than_the_horizon():
+    with pytest.raises(ValueError, match=r"max_episode_steps \(20\) must equal the horizon \(10\).*"
+                                         r"horizon=10, max_episode_steps=10"):
+        gymnasium.make_vec(ENV_ID, num_envs=2, horizon=10)
+    envs = gymnasium.make_vec(ENV_ID, num_envs=2, horizon=10, max_episode_steps=10)
+    envs.reset(seed=0)
+    assert [envs.step(np.zeros((2, 2)))[3].any() for _ in range(10)] == [False] * 9 + [True]
+
+
+def _one_line_error(call, match):
+    with pytest.raises(ValueError, match=match) as error:
+        call()
+    assert "\n" not in str(error.value)
+    return str(error.value)
+
+
+def test_hostile_scenes_are_refused_naming_the_option_and_the_fix():
+    """A NaN position once made every reward NaN; float colours were a raw IndexError."""
+    env = ReachEnv()
+    good = Scene(np.array([0, 16, 32]), np.array([[0.1, 0.0], [-0.1, 0.0], [0.0, 0.15]]), target=0)
+    for positions in ([[np.nan, 0.0], [-0.1, 0.0], [0.0, 0.15]], [[0.1, np.inf], [-0.1, 0.0], [0.0, 0.15]],
+                      [[0.1, 0.0], [-0.1, 0.0], [0.0, 0.3]], [[0.1 + 1j, 0], [-0.1, 0], [0, 0.15]]):
+        _one_line_error(lambda: env.reset(options={"scene": Scene(good.colours, np.array(positions), 0)}),
+                        r"reset option 'scene': positions must be finite metres inside the arena .* replace the NaN")
+    for colours in ([0.0, 16.0, 32.0], [0.5, 16, 32], [True, False, False]):
+        _one_line_error(lambda: env.reset(options={"scene": Scene(np.array(colours), good.positions, 0)}),
+                        r"reset option 'scene': colours must be integer palette indices; .* dtype=int")
+    for target in (True, 0.0):
+        _one_line_error(lambda: env.reset(options={"scene": Scene(good.colours, good.positions, target)}),
+                        r"reset option 'scene': target must be an int")
+    _one_line_error(lambda: env.reset(options={"scene": {"colours": [0, 16, 32]}}),
+                    r"reset option 'scene' must be a oneshot.world.reach.Scene; got dict")
+    # the scene accepted is copied: writing into the caller's arrays cannot move the target
+    positions = good.positions.copy()
+    _, info = env.reset(options={"scene": Scene(np.array([0, 16, 32]), positions, 0)})
+    positions[:] = np.nan
+    assert env.step(np.zeros(2))[4]["target_position"].tolist() == [0.1, 0.0]
+
+
+def test_bool_and_float_target_colours_are_refused_not_read_as_indices():
+    """target_colour=True was colour 1; 5.0 said "not a 'train' colour" though 5 is one."""
+    for colour in (True, np.True_, False, 5.0, np.float64(5.0), "5"):
+        _one_line_error(lambda: ReachEnv(target_colour=colour),
+                        r"target_colour must be an int; .* choose one of oneshot.world.palette.split_colours\('train'\)")
+        _one_line_error(lambda: ReachEnv().reset(options={"target_colour": colour}), r"target_colour must be an int")
+    assert ReachEnv(target_colour=np.int64(5)).reset(seed=0)[1]["target_colour"] == 5
+    for name, value in (("image_size", 32.0), ("horizon", True)):
+        _one_line_error(lambda: ReachEnv(**{name: value}), rf"{name} must be an int")
+
+
+def test_complex_or_non_numeric_actions_are_refused_not_truncated():
+    env = ReachEnv()
+    env.reset(seed=0)
+    for action in (np.array([0.1 + 0.4j, 0.0]), [0.1j, 0], np.array(["0.1", "0.2"]), np.array([True, False])):
+        _one_line_error(lambda: env.step(action), r"action must be \(2,\) real joint torques in N m; got .* float array")
+    assert env.world.t == 0                            # nothing was applied
+    for action in (np.array([0.1, -0.2], np.float32), np.array([0, 1]), [0.1, -0.2]):
+        env.step(action)                               # real torques of any real dtype still work
+    assert env.world.t == 3

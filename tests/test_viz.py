@@ -1,12 +1,14 @@
 """Pictures (oneshot.tools.viz) and the demo's choice of what to show (oneshot.demo): sizes, the target ring
-where the scene puts the target, labels, the GIF's frames, and a failure shown when there is one."""
+where the scene puts the target, the base and hand where the arm has them, labels, the GIF's frames, a
+failure shown when there is one, and captions that say what the arm did."""
 import numpy as np
 from PIL import Image
 
 from oneshot import demo
+from oneshot.expert import controller
 from oneshot.tools import viz
-from oneshot.world import render
-from oneshot.world.reach import Scene, WorldConfig
+from oneshot.world import palette, render
+from oneshot.world.reach import ReachWorld, Scene, WorldConfig
 
 H = W = 32
 SCALE = 4
@@ -43,7 +45,8 @@ def test_the_ring_is_centred_on_the_disc_the_scene_places():
     target = np.array([0.08, -0.05])                      # metres
     far_arm = np.array([[-0.2, 0.2]] * 3)                  # the arm folded into a far corner
     frame = render.render(far_arm, target[None], np.array([RED], np.uint8), arena_half_width=cfg.arena_half_width)
-    centre, radius = demo.target_pixels(Scene(np.array([0]), target[None]), cfg)
+    marks = viz.episode_marks([{"scene": Scene(np.array([0]), target[None]), "end_effector": far_arm[1:]}], cfg)
+    centre, radius = marks["targets"][0], marks["radius"]
     plain, ringed = viz.marked_frame(frame, SCALE), viz.marked_frame(frame, SCALE, centre, radius)
     plain, ringed = np.asarray(plain), np.asarray(ringed)
     assert plain.shape == (H * SCALE, W * SCALE, 3)
@@ -126,10 +129,68 @@ def test_the_animation_prefers_a_scene_where_adapting_made_the_difference():
     assert demo.contrast_trial(np.full((3, 2), wrong), np.full((3, 2), wrong)) == (0, 0)
 
 
-def test_outcomes_tell_a_near_miss_from_a_distractor():
+def test_outcomes_say_where_the_arm_stopped_by_distance_not_only_by_the_closest_disc():
+    """Within 0.06 m (half the discs' minimum separation) of a disc it went there; farther from every
+    disc, it went to none, whichever is closest (the demo's GIF once said "went to a distractor" of an
+    arm that stopped 8.7 and 10 cm from two distractors)."""
     scene = Scene(np.array([0, 16, 32]), np.array([[0.1, 0.0], [-0.1, 0.0], [0.0, 0.15]]), target=0)
     def trial(end, success=False):
         return {"success": success, "scene": scene, "end_effector": np.tile(end, (20, 1))}
     assert demo.outcome(trial([0.1, 0.0], success=True)) == "reached"
-    assert demo.outcome(trial([0.1, 0.07])) == "missed: near miss"
-    assert demo.outcome(trial([-0.09, 0.0])) == "missed: went to a distractor"
+    assert demo.outcome(trial([0.1, 0.055])) == demo.NEAR_MISS == "missed: near miss"
+    assert demo.outcome(trial([-0.1, 0.055])) == demo.DISTRACTOR == "missed: went to a distractor"
+    assert demo.outcome(trial([0.1, 0.07])) == demo.outcome(trial([-0.1, 0.065])) == demo.ASTRAY
+    assert demo.outcome(trial([0.0, 0.07])) == demo.ASTRAY == "missed: near no disc"   # between all three
+    # the radius is the world's: half its min_separation
+    assert demo.outcome(trial([0.1, 0.07]), WorldConfig(min_separation=0.16)) == demo.NEAR_MISS
+
+
+def test_marked_frames_mark_the_base_and_the_hand_where_given():
+    frame = _episode(1)[0]
+    plain = np.asarray(viz.marked_frame(frame, SCALE))
+    for base, hand in (((16.0, 16.0), None), (None, (5.0, 9.0)), ((16.0, 16.0), (5.0, 9.0))):
+        marked = np.asarray(viz.marked_frame(frame, SCALE, base=base, hand=hand))
+        ys, xs = np.nonzero((marked != plain).any(axis=-1))
+        assert (marked[ys, xs] == viz.MARK).all()
+        at = np.stack([xs + 0.5, ys + 0.5], -1) / SCALE                    # frame pixels
+        on_base = np.abs(at - (base or (-9, -9))).max(axis=1) <= viz.BASE_HALF_WIDTH + 0.2    # a square
+        on_hand = np.abs(np.linalg.norm(at - (hand or (-9, -9)), axis=1) - viz.HAND_RADIUS) <= 0.6  # a circle
+        assert (on_base | on_hand).all()
+        assert (on_base.sum() > 20) == (base is not None) and (on_hand.sum() > 20) == (hand is not None)
+    assert np.array_equal(np.asarray(viz.marked_frame(frame, SCALE, hand=(np.nan, np.nan))), plain)
+
+
+def test_episode_marks_put_the_hand_on_the_arms_end_in_every_frame():
+    """A demo's hands come from its states, a rollout's from its end effectors one step late (and the start
+    pose's for frame 0): two records of the same episode give the same marks, on the arm's white pixels."""
+    world = ReachWorld()
+    recorded = controller.demonstrate(world, seed=2)
+    rollout = {"scene": recorded["scene"], "end_effector": recorded["end_effector"]}
+    marks = viz.episode_marks([recorded, rollout], world.config)
+    from_states, from_rollout = marks["hands"]
+    assert from_states.shape == (20, 2) and np.abs(from_states - from_rollout).max() < 1e-4
+    assert np.allclose(marks["base"], (16, 16)) and np.allclose(marks["radius"], 2 * 0.025 * 32 / 0.44)
+    x, y = np.floor(from_states).astype(int).T
+    brightest = [recorded["images"][t, y[t] - 1:y[t] + 2, x[t] - 1:x[t] + 2].max() for t in range(20)]
+    assert min(brightest) > 100                   # the arm (or a disc over it) at every hand mark, not background
+    noisy = viz.episode_marks([rollout], WorldConfig(start_noise=0.1))["hands"][0]
+    assert np.isnan(noisy[0]).all() and np.array_equal(noisy[1:], from_rollout[1:])  # start unknown: unmarked
+
+
+def test_the_demo_pictures_mark_target_base_and_hand_in_every_frame():
+    """The demo's film strip and GIF against the same pictures unmarked: they differ only by white marks,
+    a ring, a square and a circle's worth (over 60 pixels) in every tile."""
+    cfg = WorldConfig(split="heldout")
+    recorded = controller.demonstrate(ReachWorld(cfg), seed=0, options={"target_colour": 4})   # hue 30 deg
+    strip = np.asarray(demo.film_strip(cfg, [(recorded, None)]))
+    bare = np.asarray(viz.filmstrip([recorded["images"]], labels=["hue 30 deg\ndemonstration"],
+                                    swatches=[palette.palette_rgb()[4]]))
+    changed = (strip != bare).any(axis=-1)
+    assert (strip[changed] == viz.MARK).all() and changed.sum() > 11 * 60        # 11 kept frames
+    titles = ["demonstration\nhue 30 deg"] + [f"{when} adapting\n{demo.outcome(recorded, cfg)}"
+                                              for when in ("before", "after")]
+    for marked, plain in zip(demo.animation(cfg, recorded, recorded, recorded),
+                             viz.side_by_side([recorded["images"]] * 3, titles)):
+        marked, plain = np.asarray(marked), np.asarray(plain)
+        changed = (marked != plain).any(axis=-1)
+        assert (marked[changed] == viz.MARK).all() and changed.sum() > 3 * 60    # 3 panels

@@ -1,10 +1,13 @@
 """Pictures: film strips (PNG) and animations (GIF) of episodes, with Pillow only.
 
 A frame is what the policy sees, (H, W, 3) uint8 (32x32 by default). Pictures show it `scale` times
-larger, each pixel a block, and can mark the target disc in every frame with a dashed white ring:
-white is no disc's colour (the palette's colours are all saturated), and the dashes tell the ring from
-the white arm. Target positions are in frame pixels, as `oneshot.world.render.world_to_pixels` gives them.
-Every function here takes arrays and returns new PIL images; only the `save_*` functions write files.
+larger, each pixel a block, and mark what a person needs to read it, on the enlarged copy only (the
+policy's frames are never changed): the target disc with a dashed white ring (white is no disc's
+colour, the palette's colours are all saturated, and the dashes tell the ring from the white arm), the
+arm's base with a white square and its hand (the end effector) with a small white circle.
+Positions are in frame pixels, as `oneshot.world.render.world_to_pixels` gives them; `episode_marks`
+computes them all for recorded episodes. Every function here takes arrays and returns new PIL images;
+only the `save_*` functions write files.
 """
 import os
 
@@ -12,10 +15,13 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from oneshot.data.datasets import atomic_write
+from oneshot.world import arm, render
 
 BACKGROUND = (40, 40, 40)      # between tiles and behind text
 TEXT = (235, 235, 235)
-MARK = (255, 255, 255)         # the target ring
+MARK = (255, 255, 255)         # the target ring, the base and the hand
+BASE_HALF_WIDTH = 1.2          # the base's square: half its side, frame pixels
+HAND_RADIUS = 1.2              # the hand's circle, frame pixels (a disc's radius is 1.8 at 32x32)
 
 
 def font(size=14):
@@ -26,24 +32,62 @@ def font(size=14):
         return ImageFont.load_default()
 
 
-def marked_frame(frame, scale=4, target=None, radius=3.0, dashes=12):
-    """One frame enlarged, with the target ringed.
+def marked_frame(frame, scale=4, target=None, radius=3.0, dashes=12, hand=None, base=None):
+    """One frame enlarged, with the target ringed and the arm's base and hand marked.
 
     frame: (H, W, 3) uint8; target: (x, y) in frame pixels, or None for no ring; radius: the ring's
-    radius in frame pixels. Returns a PIL image of W scale x H scale pixels, each frame pixel a
-    scale x scale block, with a white ring of `dashes` dashes around scale * target.
+    radius in frame pixels; hand, base: (x, y) in frame pixels, or None (or NaN) for no mark. Returns a
+    PIL image of W scale x H scale pixels, each frame pixel a scale x scale block, with a white ring of
+    `dashes` dashes around scale * target, a white square on the base and a white circle on the hand.
     """
     frame = np.asarray(frame)
     if frame.ndim != 3 or frame.shape[2] != 3 or frame.dtype != np.uint8:
         raise ValueError(f"a frame must be (H, W, 3) uint8; got {frame.shape} {frame.dtype}")
     tile = Image.fromarray(np.repeat(np.repeat(frame, scale, axis=0), scale, axis=1))
+    draw, width = ImageDraw.Draw(tile), max(1, scale // 2)
+    if base is not None and np.all(np.isfinite(base)):
+        x, y, r = base[0] * scale, base[1] * scale, BASE_HALF_WIDTH * scale
+        draw.rectangle([x - r, y - r, x + r, y + r], fill=MARK)
+    if hand is not None and np.all(np.isfinite(hand)):
+        x, y, r = hand[0] * scale, hand[1] * scale, HAND_RADIUS * scale
+        draw.ellipse([x - r, y - r, x + r, y + r], outline=MARK, width=width)
     if target is not None:
         x, y, r = target[0] * scale, target[1] * scale, radius * scale
-        draw, step = ImageDraw.Draw(tile), 360 / dashes
+        step = 360 / dashes
         for k in range(dashes):                    # dash k spans angles [k step, (k + 1/2) step], clockwise
-            draw.arc([x - r, y - r, x + r, y + r], k * step, (k + 0.5) * step, fill=MARK,
-                     width=max(1, scale // 2))
+            draw.arc([x - r, y - r, x + r, y + r], k * step, (k + 0.5) * step, fill=MARK, width=width)
     return tile
+
+
+def episode_marks(episodes, cfg):
+    """What pictures mark in recorded episodes, as keyword arguments of `filmstrip` and `side_by_side`.
+
+    episodes: dicts with "scene" (`oneshot.world.reach.Scene`) and "states" (T, 6) (an expert demo:
+    `oneshot.world.reach.observation_state` of each frame) or "end_effector" (T, 2) m after each step (a
+    policy's rollout); cfg: the WorldConfig they were recorded in. Returns {"targets": each episode's
+    target centre (x, y), "hands": each episode's (T, 2) hand in every frame, "base": (x, y), "radius":
+    the ring's radius, twice a disc's}, all in frame pixels. Frame t shows the arm before step t, so a
+    rollout's hand in frame t is its end effector after step t - 1, and in frame 0 the start pose's (left
+    unmarked, NaN, when cfg.start_noise moved the start pose).
+    """
+    def pixels(points):
+        return render.world_to_pixels(points, cfg.arena_half_width, cfg.image_size)
+
+    hands = []
+    for episode in episodes:
+        if "states" in episode:           # observation_state: angles (2,), velocities (2,), end effector (2,)
+            hands.append(pixels(np.asarray(episode["states"])[:, 4:6]))
+        else:
+            start = (arm.forward_kinematics(np.array(cfg.arm.q0), cfg.arm) if cfg.start_noise == 0
+                     else np.full(2, np.nan))
+            hands.append(pixels(np.concatenate([start[None], np.asarray(episode["end_effector"])[:-1]])))
+    return {"targets": [pixels(e["scene"].target_position) for e in episodes], "hands": hands,
+            "base": pixels(np.zeros(2)), "radius": ring_radius(cfg)}
+
+
+def ring_radius(cfg):
+    """The target ring's radius in frame pixels: twice a disc's (cfg.object_radius), for the WorldConfig cfg."""
+    return 2 * cfg.object_radius * cfg.image_size / (2 * cfg.arena_half_width)
 
 
 def _text_size(draw, text, typeface):
@@ -52,21 +96,23 @@ def _text_size(draw, text, typeface):
 
 
 def filmstrip(rows, every=2, scale=4, labels=None, gap=6, targets=None, radius=3.0, swatches=None,
-              group=1, font_size=18):
+              group=1, font_size=18, hands=None, base=None):
     """Tile episodes into one picture: a row per episode, a column per kept time step.
 
     rows: R frame stacks (T, H, W, 3) uint8 (equal H, W); every: keep every n-th frame (the last is
     always kept), numbered "t = 0", "t = 2", ... above the first row; labels: R strings ("\\n" breaks
     lines), drawn at each row's left; swatches: R RGB colours, each a small disc before its label;
     targets: R target positions (x, y) in frame pixels (or None: no ring in that row), ringed in every
-    frame (`marked_frame`, ring radius `radius` frame pixels); group: rows per group, groups set apart
+    frame (`marked_frame`, ring radius `radius` frame pixels); hands: R (T, 2) hand positions, one per
+    frame, in frame pixels (or None), and base: the arm's base (x, y), marked in every frame
+    (`episode_marks` gives targets, hands, base and radius); group: rows per group, groups set apart
     by an extra 2 gap pixels. Returns a PIL image of width margin + gap + C (W scale + gap) and height
     header + gap + R (H scale + gap) + 2 gap (number of groups - 1), where C is the longest row's
     column count and the margin fits the widest label (0 without labels).
     """
     if not rows:
         raise ValueError("filmstrip needs at least one row of frames")
-    for name, per_row in (("labels", labels), ("targets", targets), ("swatches", swatches)):
+    for name, per_row in (("labels", labels), ("targets", targets), ("swatches", swatches), ("hands", hands)):
         if per_row is not None and len(per_row) != len(rows):
             raise ValueError(f"filmstrip got {len(rows)} rows but {len(per_row)} {name}")
     h, w = rows[0].shape[1:3]
@@ -91,7 +137,9 @@ def filmstrip(rows, every=2, scale=4, labels=None, gap=6, targets=None, radius=3
         top = header + gap + r * tile_h + 2 * gap * (r // group)
         target = None if targets is None else targets[r]
         for c, t in enumerate(columns[r]):
-            canvas.paste(marked_frame(frames[t], scale, target, radius), (margin + gap + c * tile_w, top))
+            hand = None if hands is None or hands[r] is None else hands[r][t]
+            canvas.paste(marked_frame(frames[t], scale, target, radius, hand=hand, base=base),
+                         (margin + gap + c * tile_w, top))
         if labels is not None:
             text_w, text_h = _text_size(draw, labels[r], typeface)
             middle = top + h * scale / 2
@@ -103,20 +151,21 @@ def filmstrip(rows, every=2, scale=4, labels=None, gap=6, targets=None, radius=3
     return canvas
 
 
-def side_by_side(episodes, titles, targets=None, radius=3.0, scale=6, gap=6, font_size=14):
+def side_by_side(episodes, titles, targets=None, radius=3.0, scale=6, gap=6, font_size=14, hands=None, base=None):
     """Frames of an animation playing episodes side by side: a titled panel per episode, the time step
     below.
 
     episodes: P frame stacks (T, H, W, 3) uint8 of equal shape; titles: P strings ("\\n" breaks lines);
-    targets: P target positions (x, y) in frame pixels (or None), ringed in every frame. Returns T PIL
+    targets: P target positions (x, y) in frame pixels (or None), ringed in every frame; hands: P (T, 2)
+    hand positions and base: (x, y), marked as in `filmstrip` (`episode_marks` gives them). Returns T PIL
     images, each gap + P (W scale + gap) wide and header + H scale + footer high.
     """
     shapes = {np.shape(e) for e in episodes}
     if len(shapes) != 1:
         raise ValueError(f"side_by_side needs frame stacks of one shape (T, H, W, 3); got {sorted(shapes)}")
-    if len(titles) != len(episodes) or (targets is not None and len(targets) != len(episodes)):
-        raise ValueError(f"side_by_side got {len(episodes)} episodes but {len(titles)} titles"
-                         + ("" if targets is None else f" and {len(targets)} targets"))
+    for name, per_panel in (("titles", titles), ("targets", targets), ("hands", hands)):
+        if per_panel is not None and len(per_panel) != len(episodes):
+            raise ValueError(f"side_by_side got {len(episodes)} episodes but {len(per_panel)} {name}")
     n_steps, h, w = np.shape(episodes[0])[:3]
     typeface = font(font_size)
     measure = ImageDraw.Draw(Image.new("RGB", (1, 1)))
@@ -131,8 +180,9 @@ def side_by_side(episodes, titles, targets=None, radius=3.0, scale=6, gap=6, fon
             x = gap + p * panel
             draw.multiline_text((x + w * scale / 2, header - gap), titles[p], fill=TEXT, font=typeface,
                                 anchor="md", align="center", spacing=4)
-            canvas.paste(marked_frame(frames[t], scale, None if targets is None else targets[p], radius),
-                         (x, header))
+            hand = None if hands is None or hands[p] is None else hands[p][t]
+            canvas.paste(marked_frame(frames[t], scale, None if targets is None else targets[p], radius,
+                                      hand=hand, base=base), (x, header))
         draw.text((canvas.width / 2, header + h * scale + gap), f"t = {t} of {n_steps - 1}", fill=TEXT,
                   font=typeface, anchor="ma")
         images.append(canvas)

@@ -1,38 +1,49 @@
 """The reaching world as a Gymnasium environment, `oneshot/Reach-v0` (optional extra: pip install ".[gym]").
 
 `oneshot.world.reach.ReachWorld` already follows Gymnasium's API; this module makes it a real
-`gymnasium.Env`, with spaces, Gymnasium's seeding (`np_random`), `render_mode` and registration, so
-RL libraries and Gymnasium's tools (`check_env`, `gymnasium.make`, wrappers) accept it:
+`gymnasium.Env`, with spaces, Gymnasium's seeding (`np_random`), `render_mode`, a vector entry point,
+and a goal in the observation, so RL libraries and Gymnasium's tools (`check_env`, `make`, `make_vec`,
+wrappers) accept it. `import oneshot` registers it (`oneshot/__init__.py`), as Gymnasium's conventions
+ask:
 
     import gymnasium
-    import oneshot.world.gym                       # registers oneshot/Reach-v0
-    env = gymnasium.make("oneshot/Reach-v0", target_colour=5, render_mode="rgb_array")
+    import oneshot                                 # registers oneshot/Reach-v0
+    env = gymnasium.make("oneshot/Reach-v0", render_mode="rgb_array")    # a random target per episode
     obs, info = env.reset(seed=0)
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    envs = gymnasium.make_vec("oneshot/Reach-v0", num_envs=4)           # `vector_env`
 
-`gymnasium.make("oneshot.world.gym:oneshot/Reach-v0")` imports the module itself.
+`gymnasium.make("oneshot:oneshot/Reach-v0")` imports `oneshot` itself.
 
-Observation: a dict, exactly the world's: "image" (H, W, 3) uint8, "joint_angles" (2,) rad,
-"joint_velocities" (2,) rad/s, "end_effector" (2,) m, all float64 but the image.
-Action: (2,) joint torques in N m, float64, within +-0.5 N m. Reward: minus the end-effector-to-target
-distance in metres. An episode never terminates; it truncates after `horizon` steps (20), when
-info["success"] tells whether the end effector reached the target (paper Section IV).
-info: "success" bool, "target_colour" int, "target_position" (2,) m, "object_colours" (n,),
-"object_positions" (n, 2) m: plain values and fresh arrays, so Gymnasium can compare and stack them.
+Observation: a dict, the world's "image" (H, W, 3) uint8, "joint_angles" (2,) rad, "joint_velocities"
+(2,) rad/s, "end_effector" (2,) m (float64), and the goal, "target_rgb" (3,) uint8: the target disc's
+colour, the task (paper Section IV). With a random target colour per episode the image alone does not
+say which disc to reach; the goal does, as in Gymnasium-Robotics' goal-conditioned environments. It is
+not their `desired_goal`: the goal is a colour, not a place the arm can be compared with.
+Action: (2,) joint torques in N m, float64, within +-0.5 N m (real numbers; larger ones are clipped).
+Reward: minus the end-effector-to-target distance in metres. An episode never terminates; it truncates
+after `horizon` steps (20, the spec's max_episode_steps), when info["success"] tells whether the end
+effector reached the target (paper Section IV).
+info: "success" bool, "target_colour" int (palette index), "target_position" (2,) m, "object_colours"
+(n,), "object_positions" (n, 2) m: plain values and fresh arrays, so Gymnasium can compare and stack them.
 """
 try:
     import gymnasium
     from gymnasium import spaces
 except ImportError as error:
     raise ImportError('oneshot.world.gym needs Gymnasium; install the extra: pip install ".[gym]"') from error
+import functools
+
 import numpy as np
 
-from oneshot.world import palette
+from oneshot import GYM_ENV_ID as ENV_ID
+from oneshot.tools import viz
+from oneshot.world import palette, render
 from oneshot.world.palette import PaletteConfig
-from oneshot.world.reach import ReachWorld, WorldConfig
+from oneshot.world.reach import ReachWorld, Scene, WorldConfig
 
-ENV_ID = "oneshot/Reach-v0"
 OPTIONS = ("target_colour", "scene")
+RENDER_SCALE = 4          # render() shows each image pixel as a 4x4 block: 128x128 for 32x32 images
 
 
 def state_bounds(config):
@@ -58,12 +69,64 @@ def state_bounds(config):
     return start + u * t ** 2 / (2 * lambda_min), u * t / lambda_min
 
 
+def check_int(name, value, fix):
+    """`value` as an int if it is a Python or NumPy integer (not a bool, which is 0 or 1 to NumPy, nor a
+    float); else ValueError naming `name` and `fix`."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an int; got {value!r} ({type(value).__name__}); {fix}")
+    return int(value)
+
+
+def check_target_colour(colour, split, cfg):
+    """The palette index `colour` as an int, if it belongs to `split`; else a ValueError naming the fix."""
+    fix = f"choose one of oneshot.world.palette.split_colours({split!r})"
+    palette.check_colour(check_int("target_colour", colour, fix), split, cfg)
+    return int(colour)
+
+
+def check_scene(scene, cfg):
+    """A copy of `scene` (so that writing into the caller's arrays cannot move the env's discs), if it is a
+    `Scene` the env can show: integer palette indices, finite positions inside the arena (metres), an int
+    target index; else a ValueError naming the reset option and the fix. The world then checks the
+    shapes and that the indices are in range. cfg: the WorldConfig."""
+    fix = "build one with oneshot.world.reach.Scene(colours, positions, target), or sample_scene"
+    if not isinstance(scene, Scene):
+        raise ValueError(f"reset option 'scene' must be a oneshot.world.reach.Scene; got {type(scene).__name__}; {fix}")
+    colours, positions = np.asarray(scene.colours), np.asarray(scene.positions)
+    if colours.dtype.kind not in "iu":
+        raise ValueError(f"reset option 'scene': colours must be integer palette indices; got {colours.dtype} "
+                         f"{colours.tolist()}; pass np.array(colours, dtype=int)")
+    a = cfg.arena_half_width
+    if positions.dtype.kind not in "iuf" or not np.all(np.abs(positions) <= a):     # False for NaN too
+        raise ValueError(f"reset option 'scene': positions must be finite metres inside the arena [-{a}, {a}]^2; "
+                         f"got {positions.tolist()}; replace the NaN, inf or outside positions")
+    target = check_int("reset option 'scene': target", scene.target, "pass the index of the target object")
+    return Scene(colours.copy(), positions.astype(float), target)
+
+
+def vector_env(num_envs=1, max_episode_steps=None, **kwargs):
+    """Gymnasium's vector entry point (make_vec's default mode, "vector_entry_point"): `num_envs`
+    ReachEnvs built with `kwargs`, stepped one after another by a `gymnasium.vector.SyncVectorEnv`
+    (each world is its own Pymunk space, so there is nothing to batch). make_vec passes the spec's
+    max_episode_steps, which must equal the horizon, where the env truncates itself.
+    """
+    num_envs = check_int("num_envs", num_envs, "pass a positive number of environments")
+    if num_envs < 1:
+        raise ValueError(f"num_envs must be at least 1; got {num_envs}")
+    horizon = kwargs.get("horizon", WorldConfig().horizon)
+    if max_episode_steps is not None and max_episode_steps != horizon:
+        raise ValueError(f"max_episode_steps ({max_episode_steps}) must equal the horizon ({horizon}), where the "
+                         f"env truncates itself; pass both, e.g. horizon={horizon}, max_episode_steps={horizon}")
+    return gymnasium.vector.SyncVectorEnv([functools.partial(ReachEnv, **kwargs)] * num_envs)
+
+
 class ReachEnv(gymnasium.Env):
     """Reach the disc of one colour among distractors with a planar 2-link arm (paper Section IV).
 
     split: which colours scenes are drawn from, "train" or "heldout"; palette_mode: "hues" (48
     colours) or "grid" (648; `oneshot.world.palette`); image_size: H = W in pixels; horizon: T, steps per
-    episode; target_colour: a palette index of the split that every episode uses, or None for a
+    episode (through `gymnasium.make`, pass max_episode_steps=T too: make does not tell the env its
+    TimeLimit); target_colour: a palette index of the split that every episode uses, or None for a
     random colour per episode; render_mode: None or "rgb_array".
     """
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}   # 20 fps: one frame per 0.05 s step
@@ -73,13 +136,16 @@ class ReachEnv(gymnasium.Env):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}; "
                              f"got {render_mode!r}")
+        image_size = check_int("image_size", image_size, "pass the image's side in pixels, e.g. 32")
+        horizon = check_int("horizon", horizon, "pass the number of steps per episode, e.g. 20")
         config = WorldConfig(palette=PaletteConfig(mode=palette_mode), split=split,
                              image_size=image_size, horizon=horizon)
         if target_colour is not None:
-            palette.check_colour(target_colour, split, config.palette)
+            target_colour = check_target_colour(target_colour, split, config.palette)
         self.world = ReachWorld(config)
         self.target_colour = target_colour
         self.render_mode = render_mode
+        self._rgb = palette.palette_rgb(config.palette)           # (n_colours, 3) uint8
 
         max_angle, max_velocity = state_bounds(config)
         arena = config.arena_half_width
@@ -88,6 +154,7 @@ class ReachEnv(gymnasium.Env):
             "joint_angles": spaces.Box(-max_angle, max_angle, (2,), np.float64),
             "joint_velocities": spaces.Box(-max_velocity, max_velocity, (2,), np.float64),
             "end_effector": spaces.Box(-arena, arena, (2,), np.float64),
+            "target_rgb": spaces.Box(0, 255, (3,), np.uint8),
         })
         torque = config.arm.max_torque
         self.action_space = spaces.Box(-torque, torque, (2,), np.float64)
@@ -104,35 +171,51 @@ class ReachEnv(gymnasium.Env):
         unknown = set(options) - set(OPTIONS)
         if unknown:
             raise ValueError(f"unknown reset options {sorted(unknown)}; use {OPTIONS}")
-        if "scene" not in options and options.get("target_colour") is None:
+        cfg = self.world.config
+        if "scene" in options:
+            options["scene"] = check_scene(options["scene"], cfg)
+        elif options.get("target_colour") is not None:
+            options["target_colour"] = check_target_colour(options["target_colour"], cfg.split, cfg.palette)
+        else:
             options["target_colour"] = self.target_colour
         world_seed = int(self.np_random.integers(2 ** 63))
         obs, info = self.world.reset(seed=world_seed, options=options)
         return self._observation(obs), self._info(info)
 
     def step(self, action):
-        """Apply joint torques for one 0.05 s step. action: (2,) N m (clipped to +-max_torque).
+        """Apply joint torques for one 0.05 s step. action: (2,) real, N m (clipped to +-max_torque).
 
         Returns (obs, reward, terminated, truncated, info): terminated is always False; truncated is
         True after `horizon` steps, and then info["success"] is the episode's outcome.
         """
+        action = np.asarray(action)
+        if action.dtype.kind not in "iuf":       # a complex torque would lose its imaginary part unseen
+            raise ValueError(f"action must be (2,) real joint torques in N m; got {action.dtype} {action.tolist()}; "
+                             f"pass a float array (np.real(action) drops an imaginary part)")
         obs, reward, terminated, truncated, info = self.world.step(action)
         return self._observation(obs), reward, terminated, truncated, self._info(info)
 
     def render(self):
-        """The current image, (H, W, 3) uint8, if render_mode is "rgb_array"; None otherwise."""
-        if self.render_mode == "rgb_array":
-            return self.world.render()
-        return None
+        """What a person watching sees, if render_mode is "rgb_array": the image enlarged RENDER_SCALE
+        times, (4 H, 4 W, 3) uint8, with the target ringed and the arm's base (a square) and hand (a
+        circle) marked (`oneshot.tools.viz.marked_frame`); None otherwise. The observation's image stays
+        unmarked: it is what a policy sees."""
+        if self.render_mode != "rgb_array":
+            return None
+        image, cfg = self.world.render(), self.world.config      # render() first: it asks for reset()
+        base, _, hand = render.world_to_pixels(self.world.joints(), cfg.arena_half_width, cfg.image_size)
+        target = render.world_to_pixels(self.world.scene.target_position, cfg.arena_half_width, cfg.image_size)
+        frame = viz.marked_frame(image, RENDER_SCALE, target, viz.ring_radius(cfg), hand=hand, base=base)
+        return np.asarray(frame)
 
     def close(self):
         """Nothing to release: the world holds only a Pymunk space in memory, no window or file."""
 
-    @staticmethod
-    def _observation(obs):
+    def _observation(self, obs):
         # The world also keeps obs["end_effector"] in its success history; hand out a copy so that
         # writing into the observation cannot change the episode's outcome.
-        return {**obs, "end_effector": obs["end_effector"].copy()}
+        return {**obs, "end_effector": obs["end_effector"].copy(),
+                "target_rgb": self._rgb[self.world.scene.target_colour].copy()}
 
     @staticmethod
     def _info(info):
@@ -140,8 +223,3 @@ class ReachEnv(gymnasium.Env):
         return {"success": info["success"], "target_colour": scene.target_colour,
                 "target_position": info["target_position"],
                 "object_colours": scene.colours, "object_positions": scene.positions}
-
-
-# The env truncates itself after `horizon` steps, so no TimeLimit wrapper (max_episode_steps).
-if ENV_ID not in gymnasium.registry:
-    gymnasium.register(id=ENV_ID, entry_point="oneshot.world.gym:ReachEnv")
