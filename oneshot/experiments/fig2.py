@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from oneshot.data import collection, datasets
 from oneshot.maml import imitation
 from oneshot.methods import registry
-from oneshot.tools import host
+from oneshot.tools import files, host
 from oneshot.training import checkpoint, run_folder
 from oneshot.training.config import PROFILES as PROFILES_TRAIN
 from oneshot.expert.controller import ExpertConfig
@@ -48,8 +48,8 @@ RESULTS = os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(os.path.a
 def load_results(profile, results=RESULTS):
     """The committed results of a Figure 2 sweep: (rows of runs.csv, summary.json as a dict)."""
     folder = os.path.join(results, f"fig2_{profile}")
-    with open(os.path.join(folder, "summary.json")) as f:
-        return read_rows(os.path.join(folder, "runs.csv")), json.load(f)
+    with files.open_read(os.path.join(folder, "summary.json"), "r") as f:
+        return read_rows(os.path.join(folder, "runs.csv")), files.loads_json(f.read())
 
 
 def _default(**changes):

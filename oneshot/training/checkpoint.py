@@ -31,7 +31,7 @@ from oneshot.maml import optim
 from oneshot.methods import registry
 from oneshot.policy import network
 from oneshot.training.config import TrainConfig, inner_only
-from oneshot.data.datasets import atomic_write
+from oneshot.tools.files import atomic_write
 from oneshot.policy.network import STRIDE, NetworkConfig
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig

@@ -30,6 +30,7 @@ from oneshot.methods import registry
 from oneshot.training import checkpoint
 from oneshot.world import palette
 from oneshot.training.config import inner_only
+from oneshot.tools import files
 from oneshot.expert.controller import ExpertConfig
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
@@ -115,7 +116,7 @@ def lock_run(run_dir):
         raise FileExistsError(f"--run {run_dir!r} is a file; name a folder for the run")
     created = not os.path.exists(run_dir)
     os.makedirs(run_dir, exist_ok=True)
-    with open(os.path.join(run_dir, ".lock"), "a+") as lock:
+    with files.open_write(os.path.join(run_dir, ".lock"), "a+") as lock:
         _own(lock, run_dir)                      # RunLocked: the folder is the owner's, left alone
         try:
             yield
@@ -198,7 +199,7 @@ def _train(cfg, run_dir, resume, progress, stop_after):
         params = registry.init_params(cfg, net_cfg, rng)
         adam, start, before = optim.adam_init(params), 0, 0.0
         ema = dict(params) if cfg.ema else None
-        open(log_path, "w").close()
+        files.open_write(log_path, "w").close()
     # The run's meta-training seconds, every sitting included (unknown if an older checkpoint did not say).
     t0 = time.perf_counter() - (before or 0.0)
     seconds = lambda: round(time.perf_counter() - t0, 2)
@@ -220,7 +221,7 @@ def _train(cfg, run_dir, resume, progress, stop_after):
     saved = start if resume else None            # the iteration of the checkpoint on disk, if any
     finished = (params, adam, ema, start, rng.bit_generator.state)   # the state after the last whole iteration
     try:
-        with open(log_path, "a") as log:
+        with files.open_write(log_path) as log:
             for it in bar:
                 adapt_demos, eval_demos = imitation.sample_meta_batch(demos, rng, cfg.meta_batch)
                 loss, grads = registry.meta_gradient(cfg, params, adapt_demos, eval_demos, pool)
@@ -286,7 +287,7 @@ def _log(f, record):
 
 
 def _log_now(path, record):
-    with open(path, "a") as f:
+    with files.open_write(path) as f:
         _log(f, record)
 
 
@@ -294,8 +295,7 @@ def _truncate_log(path, iteration):
     """Drop log lines past the checkpoint's iteration (a killed run wrote some before dying)."""
     if not os.path.exists(path):
         return
-    with open(path) as f:
+    with files.open_read(path, "r") as f:
         keep = [line for line in f if line.strip() and json.loads(line)["iteration"] <= iteration]
-    with open(path + ".tmp", "w") as f:
-        f.writelines(keep)
-    os.replace(path + ".tmp", path)
+    with files.atomic_write(path) as f:
+        f.write("".join(keep).encode())
