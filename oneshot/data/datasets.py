@@ -92,7 +92,7 @@ def check_layout(layout, source="dataset"):
         got, shape = layout[key]
         if got != dtype or len(shape) != ndim:
             raise DatasetError(f"{source}: {key} must be {ndim}-d {np.dtype(dtype).name}; "
-                               f"got {len(shape)}-d {got.name} {shape}; {FIX}")
+                               f"got {len(shape)}-d {_dtype_words(got)} {shape}; {FIX}")
     n, k, t, h = layout["images"][1][:4]
     n_obj = layout["colours"][1][2]
     expected = {"images": (n, k, t, h, h, 3), "states": (n, k, t, 6), "actions": (n, k, t, 2),
@@ -102,6 +102,15 @@ def check_layout(layout, source="dataset"):
         if tuple(layout[key][1]) != shape:
             raise DatasetError(f"{source}: {key} has shape {layout[key][1]}, expected {shape} "
                                f"(N={n} tasks, K={k} demos, T={t} steps); {FIX}")
+
+
+def _dtype_words(dtype):
+    """A dtype's name, with its byte order if it is not this machine's: "float32 in big-endian byte
+    order (>f4; convert with .astype(np.float32))" (a dtype of another byte order has the same name)."""
+    if dtype.isnative:
+        return dtype.name
+    order = "big" if dtype.byteorder == ">" else "little"
+    return f"{dtype.name} in {order}-endian byte order ({dtype.str}; convert with .astype(np.{dtype.name}))"
 
 
 def validate(dataset, source="dataset"):
@@ -206,7 +215,7 @@ def _read_metadata(path, archive):
     if archive.layout["metadata"][0].kind != "U" or archive.layout["metadata"][1] != ():
         raise DatasetError(f"{path!r}: its metadata is not a JSON string; {FIX}")
     try:
-        meta = json.loads(str(archive.read("metadata")))
+        meta = files.loads_json(str(archive.read("metadata")))
     except json.JSONDecodeError as e:
         raise DatasetError(f"{path!r} has corrupt metadata ({e}); {FIX}") from e
     if not isinstance(meta, dict):
