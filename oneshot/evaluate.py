@@ -12,7 +12,7 @@ import os
 from oneshot.data import datasets
 from oneshot.maml import imitation
 from oneshot import methods
-from oneshot.tools import cli
+from oneshot.tools import cli, files
 from oneshot.training import checkpoint
 from oneshot.world import palette
 from oneshot.world.palette import PaletteConfig
@@ -101,7 +101,7 @@ def main(argv=None):
     if args.json:
         written = {k: dict(v, per_colour={str(c): x for c, x in v["per_colour"].items()})
                    if "per_colour" in v else v for k, v in results.items()}
-        with datasets.atomic_write(args.json) as f:             # never half a file
+        with files.atomic_write(args.json) as f:             # never half a file
             f.write(json.dumps(written, indent=1).encode())
     return results
 

@@ -73,7 +73,7 @@ def main(argv=None):
     # how many processes share the frames. Frames and image size: the training set's, if it exists.
     world = WorldConfig(palette=PaletteConfig(mode=cfg.palette))
     frames, size = world.horizon, world.image_size
-    if os.path.exists(cfg.train_data):
+    if os.path.isfile(cfg.train_data):           # a regular file: np.load would wait on a FIFO
         try:
             with np.load(cfg.train_data, allow_pickle=False) as f:
                 recorded = json.loads(str(f["metadata"]))["world"]

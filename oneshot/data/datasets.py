@@ -20,20 +20,21 @@ of worker processes, is the same file (`npz.write`). `load` checks the file as `
 metadata the package reads and a SHA-256 checksum of the arrays, and says exactly what is wrong with
 a bad, damaged or truncated file: every failure is a DatasetError naming the file.
 """
-import contextlib
 import hashlib
 import json
 import os
-import tempfile
 
 import numpy as np
 
 from oneshot.data import npz
+from oneshot.tools import files
 from oneshot.world.arm import ArmConfig
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
 
 FORMAT_VERSION = 1
+
+atomic_write = files.atomic_write      # where it was first defined; write files with files.atomic_write
 
 # What each of the 6 numbers of a state is (`world.observation_state`; the angles and velocities are
 # arm.py's x = (q1, q2, qd1, qd2)): radians, radians per second, metres. Saved in the metadata as
@@ -91,7 +92,7 @@ def check_layout(layout, source="dataset"):
         got, shape = layout[key]
         if got != dtype or len(shape) != ndim:
             raise DatasetError(f"{source}: {key} must be {ndim}-d {np.dtype(dtype).name}; "
-                               f"got {len(shape)}-d {got.name} {shape}; {FIX}")
+                               f"got {len(shape)}-d {_dtype_words(got)} {shape}; {FIX}")
     n, k, t, h = layout["images"][1][:4]
     n_obj = layout["colours"][1][2]
     expected = {"images": (n, k, t, h, h, 3), "states": (n, k, t, 6), "actions": (n, k, t, 2),
@@ -101,6 +102,15 @@ def check_layout(layout, source="dataset"):
         if tuple(layout[key][1]) != shape:
             raise DatasetError(f"{source}: {key} has shape {layout[key][1]}, expected {shape} "
                                f"(N={n} tasks, K={k} demos, T={t} steps); {FIX}")
+
+
+def _dtype_words(dtype):
+    """A dtype's name, with its byte order if it is not this machine's: "float32 in big-endian byte
+    order (>f4; convert with .astype(np.float32))" (a dtype of another byte order has the same name)."""
+    if dtype.isnative:
+        return dtype.name
+    order = "big" if dtype.byteorder == ">" else "little"
+    return f"{dtype.name} in {order}-endian byte order ({dtype.str}; convert with .astype(np.{dtype.name}))"
 
 
 def validate(dataset, source="dataset"):
@@ -148,32 +158,11 @@ def check_metadata(metadata, layout, source="dataset"):
                            f"{list(STATE_LAYOUT)}; {FIX}")
 
 
-@contextlib.contextmanager
-def atomic_write(path):
-    """Open a temporary file beside `path` for binary writing; on success fsync it and rename it to
-    `path` (with the usual permissions), on failure remove it: never half a file at `path`."""
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=os.path.splitext(path)[1])
-    try:
-        with os.fdopen(fd, "wb") as f:
-            yield f
-            f.flush()
-            os.fsync(f.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)          # mkstemp makes 0600; give the usual permissions
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-
-
 def save(dataset, path):
-    """Write `dataset` (validated, arrays and metadata) to `path` (.npz), atomically. Adds the format
-    version, the state layout and the checksum to the metadata, and returns it. The file's bytes depend
-    on the dataset only (`npz.write`), so the same data is the same file."""
+    """Write `dataset` (validated, arrays and metadata) to `path` (.npz), atomically, through a symbolic
+    link and never over a device or a FIFO (`files.atomic_write`). Adds the format version, the state
+    layout and the checksum to the metadata, and returns it. The file's bytes depend on the dataset
+    only (`npz.write`), so the same data is the same file."""
     validate(dataset)
     arrays = {key: dataset[key] for key in ARRAYS}
     metadata = dataset.get("metadata", {})
@@ -189,7 +178,8 @@ def load(path):
     """Read and check a dataset written by `save`. Returns the dataset dict (with "metadata").
 
     Raises FileNotFoundError if there is no file, else DatasetError (a ValueError) naming the file,
-    what is wrong with it and the fix, whatever the damage. Each array's .npy header is checked
+    what is wrong with it and the fix, whatever the damage. A device, a FIFO or a socket is refused
+    before it is read (`files.open_read`), whatever its name or links. Each array's .npy header is checked
     against the zip's record of the member's size, and the metadata and shapes against each other,
     before any array is read: a flipped bit cannot make numpy allocate what the file does not hold.
     """
@@ -208,6 +198,8 @@ def load(path):
             data = {key: archive.read(key) for key in ARRAYS}
     except npz.Damaged as e:
         raise DatasetError(f"{path!r} is not a readable .npz dataset (truncated or corrupt: {e}); {FIX}") from e
+    except files.RefusedPath as e:
+        raise DatasetError(str(e)) from None
     validate(data, source)
     if checksum(data) != meta.get("checksum"):
         raise DatasetError(f"{path!r} fails its checksum: the arrays were changed or damaged after "
@@ -223,7 +215,7 @@ def _read_metadata(path, archive):
     if archive.layout["metadata"][0].kind != "U" or archive.layout["metadata"][1] != ():
         raise DatasetError(f"{path!r}: its metadata is not a JSON string; {FIX}")
     try:
-        meta = json.loads(str(archive.read("metadata")))
+        meta = files.loads_json(str(archive.read("metadata")))
     except json.JSONDecodeError as e:
         raise DatasetError(f"{path!r} has corrupt metadata ({e}); {FIX}") from e
     if not isinstance(meta, dict):

@@ -24,6 +24,8 @@ import zipfile
 
 import numpy as np
 
+from oneshot.tools import files
+
 # Deflate compresses at most 1032:1, so a member of c compressed bytes holds at most 1032 c bytes: a
 # bound on what a (damaged) zip directory can make a Reader allocate, checked before anything is read.
 MAX_DEFLATE_RATIO = 1032
@@ -62,10 +64,11 @@ class Reader:
     """The .npz file at `path`, open for reading, every member's header checked (see the module's
     docstring) when it is opened. `layout`: {name: (dtype, shape)} of its arrays, in the file's order
     (names without ".npy"); `read(name)`: one array. Raises Damaged, opening or reading, whatever is
-    wrong with the file; an OSError opening it (no such file, no permission) is the file system's."""
+    wrong with the file; an OSError opening it (no such file, no permission) is the file system's, and
+    a path that names no regular file (a device, a FIFO, a folder) is `files.RefusedPath`, unread."""
 
     def __init__(self, path):
-        self._file = open(path, "rb")
+        self._file = files.open_read(path)
         try:
             with _damage():
                 size = os.fstat(self._file.fileno()).st_size

@@ -24,7 +24,6 @@ A sweep takes any `concurrent.futures.Executor` (a process pool by default; a th
 be a module-level function (it is pickled) and write only inside its `run_dir`.
 """
 import dataclasses
-import json
 import os
 import sys
 import time
@@ -33,7 +32,7 @@ from dataclasses import dataclass
 from oneshot.data import collection, datasets
 from oneshot.maml import imitation
 from oneshot import methods
-from oneshot.tools import host
+from oneshot.tools import files, host
 from oneshot.training import checkpoint, run_folder
 from oneshot.training.config import PROFILES as PROFILES_TRAIN
 from oneshot.expert.controller import ExpertConfig
@@ -45,8 +44,8 @@ from oneshot.world.reach import WorldConfig
 def load_results(folder):
     """The results of a Figure 2 sweep in `folder` (e.g. results/fig2_paper): (rows of runs.csv,
     summary.json as a dict)."""
-    with open(os.path.join(folder, "summary.json")) as f:
-        return read_rows(os.path.join(folder, "runs.csv")), json.load(f)
+    with files.open_read(os.path.join(folder, "summary.json"), "r") as f:
+        return read_rows(os.path.join(folder, "runs.csv")), files.loads_json(f.read())
 
 
 def _default(**changes):

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 from tqdm import tqdm
 
-from oneshot.data.datasets import atomic_write
+from oneshot.tools.files import atomic_write, open_read, open_write
 from oneshot.training.scoring import wilson_interval
 
 try:
@@ -104,7 +104,7 @@ def execute(run_fn, spec, run_dir, context):
     try:
         row = row_of(spec, run_fn(spec, run_dir, context), time.perf_counter() - t0)
     except BaseException:
-        with open(error_file, "w") as f:
+        with open_write(error_file, "w") as f:
             f.write(traceback.format_exc())
         raise
     if os.path.exists(error_file):             # an earlier attempt failed; this one did not
@@ -123,7 +123,7 @@ def read_rows(path):
     """The rows of a runs.csv (typed: ints, floats, notes as its JSON string); [] if there is none."""
     if not os.path.exists(path):
         return []
-    with open(path, newline="") as f:
+    with open_read(path, "r", newline="") as f:
         reader = csv.DictReader(f)
         if tuple(reader.fieldnames or ()) != COLUMNS:
             raise ValueError(f"{path}: columns {reader.fieldnames} are not runs.csv's {list(COLUMNS)}; "
@@ -177,7 +177,7 @@ def sweep(runs, results_dir, work_dir, context, run_fn, executor=None, progress=
     if all(i in done for i in ids):            # nothing to run: no lock (another sweep may be running)
         return _finished(done, ids)
     os.makedirs(work_dir, exist_ok=True)
-    with open(os.path.join(work_dir, ".sweep.lock"), "w") as lock:
+    with open_write(os.path.join(work_dir, ".sweep.lock"), "w") as lock:
         try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)   # released when the file closes
         except BlockingIOError:

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import autograd.numpy as anp
 import numpy as np
 
+from oneshot.policy import inputs
 from oneshot.policy.layers import add_bias, concat_last, conv2d, conv_output_size, matmul, per_frame, relu, spatial_soft_argmax
 
 STRIDE = 2   # every convolution halves the image side (MIL: stride 2)
@@ -169,8 +170,10 @@ def predict(params, images, states):
     states: (T, state_dim) float, in network units (`imitation.prepare_demos`).
     Returns actions: (T, action_dim), joint torques divided by the torque bound (network units:
     multiply by `ArmConfig.max_torque` for N m), same dtype as params.
+    Raises ValueError saying what to pass for anything else (`oneshot.policy.inputs`): images outside
+    [0, 1] (camera images in 0..255: divide by 255), no frames, a missing parameter, wrong shapes.
     """
-    images, states = _check_inputs(params, images, states, task_axes=0)
+    images, states = inputs.check(params, images, states, 0, STRIDE)
     return forward(params, images, states)
 
 
@@ -184,7 +187,7 @@ def predict_tasks(params, images, states):
     records one graph instead of B, which is what makes MAML's batched meta-objective fast
     (`oneshot.maml.batched`; docs/results.md).
     """
-    images, states = _check_inputs(params, images, states, task_axes=1)
+    images, states = inputs.check(params, images, states, 1, STRIDE)
     return forward(params, images, states)
 
 
@@ -221,62 +224,6 @@ def head(params, h):
         h = relu(add_bias(matmul(h, params[f"fc{i}_w"]), params[f"fc{i}_b"]))
         i += 1
     return add_bias(matmul(h, params["out_w"]), params["out_b"])
-
-
-def _check_inputs(params, images, states, task_axes):
-    """Validate shapes and dtypes at the public entry; cast inputs to the parameters' dtype.
-
-    task_axes: 0 for `predict` (images (T, H, W, 3)), 1 for `predict_tasks` (images (B, T, H, W, 3)).
-    """
-    conv0_w = params["conv0_w"]
-    dtype, c_img = conv0_w.dtype, conv0_w.shape[-2]
-    images, states = np.asarray(images), np.asarray(states)
-    want = "(T, H, W, 3)" if task_axes == 0 else "(B, T, H, W, 3)"
-    if images.dtype == np.uint8:
-        raise ValueError(
-            f"images must be {want} float in [0, 1]; got uint8 {images.shape}. Convert once with "
-            f"oneshot.policy.network.images_to_float(images) before training or rollouts."
-        )
-    if images.ndim != 4 + task_axes or images.shape[-1] != c_img or not np.issubdtype(images.dtype, np.floating):
-        raise ValueError(f"images must be {want} float in [0, 1]; got {images.shape} {images.dtype}")
-    lead, (side_h, side_w) = images.shape[:-3], images.shape[-3:-1]  # lead = (T,) or (B, T)
-    i, c_last = 0, c_img
-    while f"conv{i}_w" in params:
-        k, c_last = params[f"conv{i}_w"].shape[-4], params[f"conv{i}_w"].shape[-1]
-        side_h, side_w = conv_output_size(side_h, k, STRIDE), conv_output_size(side_w, k, STRIDE)
-        i += 1
-    n_features = 2 * c_last if "fp_temperature" in params else side_h * side_w * c_last
-    n_in = params["fc0_w"].shape[-2] if "fc0_w" in params else params["out_w"].shape[-2]
-    n_bias = params["bias_transform"].shape[-1] if "bias_transform" in params else 0
-    state_dim = n_in - n_features - n_bias
-    if state_dim <= 0:
-        raise ValueError(
-            f"images {images.shape} give {n_features} conv features, more than the {n_in} inputs of the "
-            f"first dense layer: the params were built for smaller images (NetworkConfig.image_size)"
-        )
-    if states.shape != (*lead, state_dim) or not np.issubdtype(states.dtype, np.floating):
-        raise ValueError(
-            f"states must be {(*lead, state_dim)} float for these params and images {images.shape}; got "
-            f"{states.shape} {states.dtype}. If state_dim looks wrong, check that the images have the size "
-            f"the params were built for (NetworkConfig.image_size)."
-        )
-    if task_axes:
-        n_tasks = images.shape[0]
-        for name, value in params.items():
-            if value.ndim not in (_base_ndim(name), _base_ndim(name) + 1) or (
-                value.ndim == _base_ndim(name) + 1 and value.shape[0] != n_tasks
-            ):
-                raise ValueError(
-                    f"params[{name!r}] must be shared (no task axis) or have a leading task axis of size "
-                    f"{n_tasks} to match images {images.shape}; got {value.shape}"
-                )
-    # Same dtype as the params, so nothing silently promotes float32 training to float64.
-    return images.astype(dtype, copy=False), states.astype(dtype, copy=False)
-
-
-def _base_ndim(name):
-    """Number of axes of parameter `name` without a task axis: 4 for conv weights, 2 for dense, else 1."""
-    return 4 if name.startswith("conv") and name.endswith("_w") else 2 if name.endswith("_w") else 1
 
 
 # ----------------------------------------------------------------------------------------------------

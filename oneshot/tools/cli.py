@@ -7,7 +7,8 @@ which turns the package's errors into one line on stderr and an exit status:
 
 Exit statuses: 0 done; 2 bad input (an argument, a missing or malformed file); 1 a failure on the
 way (training diverged, a worker process died, the disk); 130 interrupted (Ctrl-C).
-The commands import this module; it imports no other part of oneshot.
+The commands import this module; it imports no other part of oneshot than `files` (safe reading
+and writing).
 """
 import argparse
 import math
@@ -15,7 +16,9 @@ import os
 import sys
 import tempfile
 
-BAD_INPUT = (ValueError, FileNotFoundError, FileExistsError)   # oneshot.data.datasets.DatasetError is a ValueError
+from oneshot.tools import files
+
+BAD_INPUT = (ValueError, FileNotFoundError, FileExistsError)   # DatasetError, files.RefusedPath are ValueErrors
 
 
 class Parser(argparse.ArgumentParser):
@@ -77,14 +80,19 @@ def boolean(text):
 
 
 def writable_file(path):
-    """An argparse type: `path`, if a file can be written there (atomically, as `oneshot.data.datasets` does):
-    it is not a folder, and its folder exists and takes new files, or can be created. Leaves nothing
-    on disk, so an unwritable output fails before the work, not after it."""
+    """An argparse type: `path`, if a file can be written there as `files.atomic_write` writes it: it
+    names a regular file, a link to one, or nothing yet (not a folder, a device, a FIFO), and the folder
+    of the file (a link's target) exists and takes new files, or can be created. Leaves nothing on
+    disk, so an unwritable output fails before the work, not after it."""
     if not path:
         raise argparse.ArgumentTypeError("expected a file path; got ''")
     if os.path.isdir(path):
         raise argparse.ArgumentTypeError(f"{path!r} is a folder; name a file (in it, if you like)")
-    _check_folder(os.path.dirname(os.path.abspath(path)), path)
+    try:
+        real = files.target(path)                        # what atomic_write will write
+    except files.RefusedPath as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    _check_folder(os.path.dirname(real), path)
     return path
 
 
@@ -161,7 +169,7 @@ def run(main, argv=None, failures=()):
     """Call a command's `main(argv)` and return what it returns, but turn the package's errors into
     one line on stderr and an exit status (no traceback for what a person can fix):
 
-        2    ValueError (oneshot.data.datasets.DatasetError among them), FileNotFoundError, FileExistsError:
+        2    ValueError (datasets.DatasetError, files.RefusedPath among them), FileNotFoundError, FileExistsError:
              bad input; the message says what and how to fix it
         1    the `failures` types (e.g. train.TrainingDiverged, shards.ShardError) and other OSError;
              lines after the first of their message (a worker's traceback) are printed after it

@@ -14,7 +14,7 @@ import os
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from oneshot.data.datasets import atomic_write
+from oneshot.tools.files import atomic_write
 from oneshot.world import arm, render
 
 BACKGROUND = (40, 40, 40)      # between tiles and behind text

@@ -31,7 +31,7 @@ from oneshot.maml import optim
 from oneshot import methods
 from oneshot.policy import network
 from oneshot.training.config import TrainConfig
-from oneshot.data.datasets import atomic_write
+from oneshot.tools.files import atomic_write, loads_json
 from oneshot.policy.network import STRIDE, NetworkConfig
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
@@ -149,7 +149,7 @@ def _read_meta(path, meta):
     if meta is None:
         raise CheckpointError(f"{path!r} has no metadata, so oneshot did not write it; {FIX}")
     try:
-        meta = json.loads(str(meta)) if meta.dtype.kind == "U" and meta.ndim == 0 else None
+        meta = loads_json(str(meta)) if meta.dtype.kind == "U" and meta.ndim == 0 else None
     except json.JSONDecodeError as e:
         raise CheckpointError(f"{path!r} has corrupt metadata ({e}); {FIX}") from e
     if not isinstance(meta, dict):

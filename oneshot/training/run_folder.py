@@ -19,8 +19,8 @@ import time
 from tqdm import tqdm
 
 from oneshot import methods
-from oneshot.data.datasets import atomic_write
 from oneshot.maml import imitation, optim
+from oneshot.tools import files
 from oneshot.training import checkpoint, loop, run_data
 from oneshot.training.loop import TrainingDiverged
 
@@ -59,7 +59,7 @@ def lock_run(run_dir):
         raise FileExistsError(f"--run {run_dir!r} is a file; name a folder for the run")
     created = not os.path.exists(run_dir)
     os.makedirs(run_dir, exist_ok=True)
-    with open(os.path.join(run_dir, ".lock"), "a+") as lock:
+    with files.open_write(os.path.join(run_dir, ".lock"), "a+") as lock:
         _own(lock, run_dir)                      # RunLocked: the folder is the owner's, left alone
         try:
             yield
@@ -119,8 +119,7 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
             raise FileExistsError(f"{run_dir!r} already holds a run; use --resume, or another --run folder")
         net_cfg = method.network_config(train_set["images"].shape[-2])
         state, before = loop.start(method, net_cfg, cfg.seed, ema=cfg.ema > 0 and method.learns), 0.0
-        with atomic_write(log_path) as f:
-            f.write(b"")
+        files.open_write(log_path, "w").close()
     # The run's meta-training seconds, every sitting included (unknown if an older checkpoint did not say).
     t0 = time.perf_counter() - (before or 0.0)
     seconds = lambda: round(time.perf_counter() - t0, 2)
@@ -143,7 +142,7 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
     finished = state                              # the state after the last whole iteration
     bar = tqdm(total=cfg.iterations, initial=state.iteration, desc="meta-training", disable=not progress)
     try:
-        with open(log_path, "a") as log:
+        with files.open_write(log_path) as log:
             for finished, records in loop.steps(method, cfg, state, demos, end, heldout_set, pool):
                 for record in records:
                     _log(log, dict(record, seconds=seconds()) if "meta_loss" in record else record)
@@ -199,7 +198,7 @@ def _log(f, record):
 
 
 def _log_now(path, record):
-    with open(path, "a") as f:
+    with files.open_write(path) as f:
         _log(f, record)
 
 
@@ -209,7 +208,7 @@ def _truncate_log(path, iteration):
     record with an "iteration" is an error naming the file, the line and the fix."""
     if not os.path.exists(path):
         return
-    with open(path, "rb") as f:
+    with files.open_read(path) as f:
         lines = f.read().split(b"\n")
     keep = []
     for number, line in enumerate(lines, 1):
@@ -228,5 +227,5 @@ def _truncate_log(path, iteration):
                              f"and --resume again") from None
         if step <= iteration:
             keep.append(line + b"\n")
-    with atomic_write(path) as f:
+    with files.atomic_write(path) as f:
         f.write(b"".join(keep))
