@@ -27,7 +27,7 @@ from oneshot import methods
 from oneshot.expert import controller
 from oneshot.maml import imitation
 from oneshot.tools import cli, viz
-from oneshot.training import checkpoint
+from oneshot.training import checkpoint, fit_check
 from oneshot.world import palette
 from oneshot.training.scoring import wilson_interval
 from oneshot.world.reach import ReachWorld, WorldConfig, closest_object
@@ -136,7 +136,7 @@ def main(argv=None):
 
     # 1. One expert demonstration per held-out colour, in the world the policy was trained in (its image
     # size, horizon, arm and palette; older checkpoints record only the image size).
-    world = ReachWorld(dataclasses.replace(checkpoint.world_config(ckpt) if ckpt else WorldConfig(), split="heldout"))
+    world = ReachWorld(dataclasses.replace(fit_check.world_config(ckpt) if ckpt else WorldConfig(), split="heldout"))
     colours = palette.split_colours("heldout", world.config.palette)
     print(f"1. The iLQG expert records ONE demonstration for each of the {len(colours)} held-out colours")
     demos = {}

@@ -13,7 +13,7 @@ from oneshot.data import datasets
 from oneshot.maml import imitation
 from oneshot import methods
 from oneshot.tools import cli, files
-from oneshot.training import checkpoint
+from oneshot.training import checkpoint, fit_check
 from oneshot.world import palette
 from oneshot.world.palette import PaletteConfig
 from oneshot.training.scoring import adaptation_gain, colour_breakdown, wilson_interval
@@ -74,7 +74,7 @@ def main(argv=None):
                                     f"{'' if name == 'heldout' else ', or skip it with --train ' + repr('')}")
     loaded = {name: datasets.load(path) for name, path in splits}
     for name, path in splits:                # images, horizon, state, torques (and palette) as trained on
-        checkpoint.check_data(ckpt, loaded[name]["metadata"], args.checkpoint, path, palette=not args.any_palette)
+        fit_check.check_data(ckpt, loaded[name]["metadata"], args.checkpoint, path, palette=not args.any_palette)
     results = {}
     for name, dataset in loaded.items():
         condition = method.conditioner(params, seed=args.seed)

@@ -14,7 +14,7 @@ from oneshot.data import datasets
 from oneshot.maml import optim
 from oneshot import methods
 from oneshot.policy import network
-from oneshot.training import checkpoint, config
+from oneshot.training import checkpoint, config, fit_check
 from oneshot.world.arm import ArmConfig
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
@@ -123,9 +123,9 @@ def test_an_old_style_checkpoint_loads_and_is_checked_by_its_network_image_size(
     rewrite(path, old_style)
     ckpt = checkpoint.load(path)
     assert_equal(ckpt, dict(saved, world=None, state_layout=None, seconds=None))
-    checkpoint.check_data(ckpt, metadata(horizon=50, palette=PaletteConfig(mode="grid")), "old.npz", "d.npz")
+    fit_check.check_data(ckpt, metadata(horizon=50, palette=PaletteConfig(mode="grid")), "old.npz", "d.npz")
     with pytest.raises(checkpoint.CheckpointError) as e:
-        checkpoint.check_data(ckpt, metadata(image_size=32), "old.npz", "d32.npz")
+        fit_check.check_data(ckpt, metadata(image_size=32), "old.npz", "d32.npz")
     assert str(e.value) == ("old.npz was trained on 8x8 images but d32.npz holds 32x32 images; "
                             "use data collected with --image-size 8")
 
@@ -138,10 +138,10 @@ def test_the_shipped_policy_loads_and_fits_the_held_out_data_but_not_64x64_image
     ckpt = checkpoint.load(PRETRAINED)
     assert ckpt["world"] is None and ckpt["network"].image_size == 32
     if SHIPPED_HELDOUT.exists():
-        checkpoint.check_data(ckpt, datasets.load(SHIPPED_HELDOUT)["metadata"], PRETRAINED, str(SHIPPED_HELDOUT))
+        fit_check.check_data(ckpt, datasets.load(SHIPPED_HELDOUT)["metadata"], PRETRAINED, str(SHIPPED_HELDOUT))
     with pytest.raises(checkpoint.CheckpointError, match=r"32x32 images but h64\.npz holds 64x64 images; "
                                                          r"use data collected with --image-size 32"):
-        checkpoint.check_data(ckpt, metadata(image_size=64), PRETRAINED, "h64.npz")
+        fit_check.check_data(ckpt, metadata(image_size=64), PRETRAINED, "h64.npz")
 
 
 # --- check_data -------------------------------------------------------------------------------------
@@ -160,29 +160,29 @@ def test_check_data_names_both_values_and_the_fix(tmp_path, changes, trained, ho
     save_tiny(tmp_path / "c.npz")
     ckpt = checkpoint.load(tmp_path / "c.npz")
     with pytest.raises(checkpoint.CheckpointError) as e:
-        checkpoint.check_data(ckpt, metadata(**changes), "runs/x/checkpoint.npz", "data/other.npz")
+        fit_check.check_data(ckpt, metadata(**changes), "runs/x/checkpoint.npz", "data/other.npz")
     message = str(e.value)
     assert message.startswith(f"runs/x/checkpoint.npz was trained on {trained}")
     assert f"but data/other.npz holds {holds}" in message and fix in message and "\n" not in message
     if "palette" in changes:
-        checkpoint.check_data(ckpt, metadata(**changes), "c.npz", "d.npz", palette=False)
+        fit_check.check_data(ckpt, metadata(**changes), "c.npz", "d.npz", palette=False)
 
 
 def test_check_data_accepts_matching_data_and_compares_recorded_state_layouts(tmp_path):
     save_tiny(tmp_path / "c.npz")
     ckpt = checkpoint.load(tmp_path / "c.npz")
     assert ckpt["state_layout"] == list(datasets.STATE_LAYOUT)
-    assert checkpoint.check_data(ckpt, metadata(split="heldout"), "c.npz", "d.npz") is None
+    assert fit_check.check_data(ckpt, metadata(split="heldout"), "c.npz", "d.npz") is None
     older = metadata()
     older["world"]["palette"] = {"heldout_every": 4, "min_separation_deg": 60.0, "size": 48}   # older data's record
-    checkpoint.check_data(ckpt, older, "c.npz", "d.npz")
-    checkpoint.check_data(ckpt, dict(metadata(), state_layout=list(datasets.STATE_LAYOUT)), "c.npz", "d.npz")
+    fit_check.check_data(ckpt, older, "c.npz", "d.npz")
+    fit_check.check_data(ckpt, dict(metadata(), state_layout=list(datasets.STATE_LAYOUT)), "c.npz", "d.npz")
     swapped = list(datasets.STATE_LAYOUT[2:4] + datasets.STATE_LAYOUT[:2] + datasets.STATE_LAYOUT[4:])
     save_tiny(tmp_path / "no_world.npz", world=None)                # the layout is checked without a world too
     for path in ("c.npz", "no_world.npz"):
         with pytest.raises(checkpoint.CheckpointError, match=r"states laid out as \['shoulder angle', .* but d\.npz "
                                                              r"holds states laid out as \['shoulder velocity'"):
-            checkpoint.check_data(checkpoint.load(tmp_path / path), dict(metadata(), state_layout=swapped),
+            fit_check.check_data(checkpoint.load(tmp_path / path), dict(metadata(), state_layout=swapped),
                                   path, "d.npz")
 
 

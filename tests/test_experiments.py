@@ -15,7 +15,8 @@ from oneshot.experiments import sweep as sweeping
 from oneshot.training.scoring import wilson_interval
 from oneshot.experiments.fig2 import PROFILES, plan, run_context
 from oneshot.training import run_folder
-from oneshot.experiments.sweep import COLUMNS, RunSpec, summarise, sweep
+from oneshot.experiments.summary import plot, summarise
+from oneshot.experiments.sweep import COLUMNS, RunSpec, sweep
 from test_checkpoint import _set, rewrite
 
 TINY = PROFILES["tiny"]
@@ -207,7 +208,7 @@ def test_summarise_pools_seeds():
 def test_plot_writes_a_png(tmp_path):
     pytest.importorskip("matplotlib")
     rows = run_sweep(tmp_path)
-    sweeping.plot(summarise(rows), tmp_path / "fig2.png", fig2.LABELS)
+    plot(summarise(rows), tmp_path / "fig2.png", fig2.LABELS)
     assert (tmp_path / "fig2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not glob.glob(str(tmp_path / ".tmp-*"))               # atomic: no temporary file left
 

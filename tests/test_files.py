@@ -24,7 +24,7 @@ from PIL import Image
 
 from oneshot import collect, evaluate
 from oneshot.data import datasets, npz
-from oneshot.experiments import fig2, sweep
+from oneshot.experiments import fig2, summary, sweep
 from oneshot.tools import viz
 from oneshot.training import checkpoint, run_folder
 from test_checkpoint import save_tiny
@@ -117,7 +117,7 @@ WRITERS = {
     "dataset": lambda path, data: datasets.save(data, path),
     "checkpoint": lambda path, data: save_tiny(path),
     "runs.csv": lambda path, data: sweep.write_rows([_row()], path),
-    "summary.json": lambda path, data: sweep.write_summary({"methods": {}, "runs": 0}, path),
+    "summary.json": lambda path, data: summary.write_summary({"methods": {}, "runs": 0}, path),
     "film strip (PNG)": lambda path, data: viz.save_atomically(Image.new("RGB", (4, 4)), path),
     "animation (GIF)": lambda path, data: viz.save_gif([Image.new("RGB", (4, 4))] * 2, path),
     "log.jsonl (appended)": lambda path, data: run_folder._log_now(path, {"iteration": 1}),

@@ -15,13 +15,14 @@ import time
 import numpy as np
 import pytest
 
-from oneshot import benchmark, demo
+from oneshot import demo
+from oneshot.benchmark import __main__ as benchmark
 from oneshot.data import collection, datasets
 from oneshot.maml import optim, shards
 from oneshot import methods
 from oneshot.methods.mil import MIL
 from oneshot.tools import cli
-from oneshot.training import checkpoint, config, run_folder
+from oneshot.training import checkpoint, config, fit_check, run_folder
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
 from oneshot import collect, evaluate, train
@@ -366,11 +367,11 @@ def test_resume_refuses_a_training_set_replaced_by_another_image_size(tmp_path, 
 
 
 def test_the_demo_acts_in_the_world_the_policy_was_trained_in(trained):
-    assert checkpoint.world_config(checkpoint.load(trained)).image_size == 32
+    assert fit_check.world_config(checkpoint.load(trained)).image_size == 32
     small = checkpoint.load(trained)
     small["world"] = None                                         # an older checkpoint: its network's size
     small["network"] = dataclasses.replace(small["network"], image_size=8)
-    assert checkpoint.world_config(small) == WorldConfig(image_size=8)
+    assert fit_check.world_config(small) == WorldConfig(image_size=8)
 
 
 def test_evaluate_on_another_palette_only_when_asked(capsys, tmp_path, trained):

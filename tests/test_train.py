@@ -310,7 +310,7 @@ def test_demo_adapts_a_checkpoint_and_reports_counts(tiny, tmp_path, capsys):
 
 
 def test_maml_benchmark_reports_the_settings_it_timed(capsys):
-    from oneshot import benchmark
+    from oneshot.benchmark import __main__ as benchmark
     benchmark.main(["maml", "--profile", "smoke", "--iterations", "1", "--inner-steps", "1", "--shards", "1",
                     "--inner-params", "conv0", "--meta-batch", "3"])
     result = json.loads(capsys.readouterr().out)

@@ -31,7 +31,8 @@ import shlex
 import sys
 
 from oneshot.experiments.fig2 import LABELS, LINES, PROFILES, ensure_data, plan, run_context, run_one
-from oneshot.experiments.sweep import PLOTS, SweepLocked, plot, summarise, sweep, write_summary
+from oneshot.experiments.summary import PLOTS, plot, summarise, write_summary
+from oneshot.experiments.sweep import SweepLocked, sweep
 
 # Optional extras: the sweep runs without them and says which one a flag or the plot needs.
 try:

@@ -21,7 +21,7 @@ from tqdm import tqdm
 from oneshot import methods
 from oneshot.maml import imitation, optim
 from oneshot.tools import files
-from oneshot.training import checkpoint, loop, run_data
+from oneshot.training import checkpoint, fit_check, loop, run_data
 from oneshot.training.loop import TrainingDiverged
 
 # Fields of TrainConfig a resume may change: how long, how often to log, evaluate and save, and the
@@ -172,7 +172,7 @@ def _resume(cfg, ckpt_path, log_path, *data):
     that it was trained with this config (but RESUMABLE fields) on data like `data`."""
     ckpt = checkpoint.load(ckpt_path)
     for dataset, path in zip(data, (cfg.train_data, cfg.heldout_data)):
-        checkpoint.check_data(ckpt, dataset["metadata"], ckpt_path, path)   # e.g. the file was replaced
+        fit_check.check_data(ckpt, dataset["metadata"], ckpt_path, path)   # e.g. the file was replaced
     stored = dataclasses.replace(ckpt["config"], **{name: getattr(cfg, name) for name in RESUMABLE})
     if stored != cfg:
         differ = ", ".join(f"{f.name}: checkpoint {getattr(stored, f.name)!r}, now {getattr(cfg, f.name)!r}"

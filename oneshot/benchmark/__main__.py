@@ -1,0 +1,102 @@
+"""Speed and quality benchmarks: `python -m oneshot.benchmark {expert,collect,maml} --help`.
+
+These measure what tests should not time: medians of repeated runs on this machine.
+    expert   iLQG solve time (median over scenes) and the expert's success rate over many scenes
+    collect  wall time to collect a dataset of demonstrations with all cores
+    maml     seconds per second-order meta-iteration, GFLOP/s and peak memory; with --breakdown, where
+             the time of one process's part of it goes (its block of every demo's frames)
+    privileged  ceilings for the policy network: plain behavioural cloning on all meta-training
+             demos when the policy is GIVEN what one-shot imitation must infer (the target's position,
+             or its colour), scored on held-out colours. If these are high, what remains hard is the
+             one-shot identification of the colour, i.e. meta-learning itself.
+"""
+import argparse
+import json
+import os
+import sys
+
+
+from oneshot.maml import shards
+from oneshot import methods
+from oneshot.tools import cli, host
+from oneshot.world import palette
+from oneshot.methods.mil import INNER_PARAMS
+from oneshot.training.config import PROFILES
+from oneshot.world.reach import WorldConfig
+
+
+from oneshot.benchmark.expert import bench_collect, bench_expert
+from oneshot.benchmark.maml import bench_breakdown, bench_meta_iteration
+from oneshot.benchmark.privileged import bench_privileged
+
+
+def main(argv=None):
+    p = cli.Parser(prog="python -m oneshot.benchmark", description=__doc__,
+                   formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="what", required=True)
+    e = sub.add_parser("expert", help="iLQG solve time and expert success rate")
+    e.add_argument("--scenes", type=cli.positive_int, default=500)
+    c = sub.add_parser("collect", help="time to collect demonstrations")
+    c.add_argument("--demos", type=cli.positive_int, default=1000)
+    c.add_argument("--workers", type=cli.positive_int, default=None, help="processes (default and at most: the cores)")
+    m = sub.add_parser("maml", help="seconds per second-order meta-iteration")
+    m.add_argument("--iterations", type=cli.positive_int, default=20)
+    m.add_argument("--profile", choices=sorted(PROFILES), default="default")
+    m.add_argument("--method", choices=[n for n in methods.NAMES if methods.REGISTRY[n].learns], default=None,
+                   help="time a baseline's iteration (same meta-batch, trunk and widths) instead of MIL's")
+    m.add_argument("--lstm-units", type=cli.positive_int, default=None, help="override the LSTM baseline's width")
+    m.add_argument("--first-order", action="store_true", help="time the first-order approximation")
+    m.add_argument("--inner-steps", type=cli.non_negative_int, default=None, help="override the profile's inner steps")
+    m.add_argument("--inner-params", choices=sorted(INNER_PARAMS), default=None,
+                   help="override which parameters the inner steps adapt")
+    m.add_argument("--meta-batch", type=cli.positive_int, default=None, help="override the profile's meta-batch")
+    m.add_argument("--shards", type=cli.positive_int, default=None,
+                   help="override the profile's shards (processes sharing each meta-gradient; 1 = one process)")
+    m.add_argument("--breakdown", action="store_true",
+                   help="instead: where the time of the training process's part goes (matrix products, "
+                        "im2col/col2im, other layer primitives, autograd's Python)")
+    v = sub.add_parser("privileged", help="ceiling: behavioural cloning given the target's position or colour")
+    v.add_argument("--given", choices=("position", "colour"), default="colour")
+    v.add_argument("--steps", type=cli.positive_int, default=3000)
+    v.add_argument("--trials", type=cli.positive_int, default=60)
+    v.add_argument("--feature-points", action="store_true")
+    v.add_argument("--train-data", default="data/train.npz")
+    v.add_argument("--seed", type=cli.non_negative_int, default=0)
+    args = p.parse_args(argv)
+    world = WorldConfig()                    # the frames and images the benchmarks time
+    try:                                     # what must fit in memory, before the work
+        if args.what == "collect":
+            tasks = len(palette.split_colours("train"))
+            cli.check_memory(cli.dataset_bytes(tasks, -(-args.demos // tasks), world.horizon, world.image_size,
+                                               world.n_objects), f"{args.demos} demos", "use fewer --demos")
+        if args.what == "maml" and args.meta_batch:
+            cli.check_memory(2 * args.meta_batch * world.horizon * world.image_size ** 2 * 3 * 4,
+                             f"a meta-batch of {args.meta_batch} tasks (its synthetic images alone)",
+                             "use a smaller --meta-batch")
+    except ValueError as error:
+        sub.choices[args.what].error(str(error))
+    if args.what == "expert":
+        result = bench_expert(args.scenes)
+    elif args.what == "collect":
+        cores = os.cpu_count() or 1
+        result = bench_collect(args.demos, min(args.workers or cores, cores))
+    elif args.what == "privileged":
+        result = bench_privileged(args.given, args.steps, trials=args.trials, feature_points=args.feature_points,
+                                  seed=args.seed, train_data=args.train_data)
+    else:
+        overrides = {k: v for k, v in (("first_order", args.first_order or None), ("inner_steps", args.inner_steps),
+                                       ("inner_params", args.inner_params), ("meta_batch", args.meta_batch),
+                                       ("shards", args.shards), ("method", args.method),
+                                       ("lstm_units", args.lstm_units)) if v is not None}
+        bench = bench_breakdown if args.breakdown else bench_meta_iteration
+        result = bench(args.iterations, args.profile, **overrides)
+    main_mb, worker_mb = host.peak_memory_mb()
+    result["peak_memory_mb"] = round(main_mb, 1)
+    result["peak_worker_memory_mb"] = round(worker_mb, 1)
+    result["machine"] = host.machine()
+    json.dump(result, sys.stdout, indent=1)
+    print()
+
+
+if __name__ == "__main__":
+    cli.run(main, failures=(shards.ShardError,))

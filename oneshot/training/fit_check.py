@@ -1,0 +1,75 @@
+"""Whether a dataset is one a checkpoint's policy can run on: the images it was trained on, its horizon,
+state layout, torque bound and palette (`check_data`); and the world a checkpoint's policy acts in.
+
+    ckpt = checkpoint.load(path)
+    fit_check.check_data(ckpt, datasets.load(data_path)["metadata"], path, data_path)   # or CheckpointError
+"""
+import dataclasses
+import json
+
+from oneshot.data import datasets
+from oneshot.training.checkpoint import CheckpointError, _world
+from oneshot.world.palette import PaletteConfig
+from oneshot.world.reach import WorldConfig
+
+
+def _plain(x):
+    """x as JSON gives it back: tuples become lists (so a recorded value compares with a read one)."""
+    return json.loads(json.dumps(x))
+
+
+def world_config(ckpt):
+    """The WorldConfig a checkpoint's policy was trained in (its image size, horizon, arm, palette), or
+    for older checkpoints, which record only the network's image size, the default world of that size."""
+    if ckpt["world"] is None:
+        return WorldConfig(image_size=ckpt["network"].image_size)
+    return datasets.world_config({"world": ckpt["world"]})
+
+
+def check_data(ckpt, metadata, ckpt_path, data_path, palette=True):
+    """Raise CheckpointError unless a dataset (`metadata`: `datasets.load(data_path)["metadata"]`) is one
+    the checkpoint's policy can run on: images of the size it was trained on, demos of its horizon, its
+    state layout, the same torque bound (the policy's actions are torques divided by it) and, with
+    palette=True, the same palette (a task is a palette index: in another palette it is another
+    colour). Older checkpoints record no world: then only the image size (the network's) is checked.
+    A state layout is compared when both record one (datasets and checkpoints recording none have
+    `datasets.STATE_LAYOUT`)."""
+    trained = ckpt["world"]
+    mine = _world(trained, f"{ckpt_path}: meta 'world'") if trained is not None else \
+        {"image_size": ckpt["network"].image_size}
+    remake = "re-create it with `python -m oneshot.collect`"
+    if not isinstance(metadata.get("world"), dict):
+        raise CheckpointError(f"{data_path} records no world config in its metadata; {remake}")
+    theirs = _world(metadata["world"], f"{data_path}: metadata 'world'", remake)
+
+    def refuse(was, holds, fix):
+        raise CheckpointError(f"{ckpt_path} was trained on {was} but {data_path} holds {holds}; {fix}")
+
+    a, b = mine["image_size"], theirs["image_size"]
+    if a != b:
+        refuse(f"{a}x{a} images", f"{b}x{b} images", f"use data collected with --image-size {a}")
+    a, b = ckpt["state_layout"], metadata.get("state_layout")
+    if a is not None and b is not None and _plain(a) != _plain(b):
+        refuse(f"states laid out as {a}", f"states laid out as {b}",
+               "use data collected by the oneshot that trained it, or re-train on this data")
+    if trained is None:
+        return
+    a, b = mine["horizon"], theirs["horizon"]
+    if a != b:
+        refuse(f"{a}-step demos", f"{b}-step demos", f"use data collected with --horizon {a}")
+    a, b = mine["max_torque"], theirs["max_torque"]
+    if a != b:
+        refuse(f"torques of at most {a} N m (its actions are divided by it)", f"torques of at most {b} N m",
+               f"use data recorded with an arm of max_torque {a}")
+    a, b = mine["palette"], theirs["palette"]
+    if palette and a != b:
+        field = "mode" if a.mode != b.mode else next(f.name for f in dataclasses.fields(PaletteConfig)
+                                                     if getattr(a, f.name) != getattr(b, f.name))
+        fix = (f"use data collected with --palette {a.mode} (or, to test the policy on other colours, "
+               f"python -m oneshot.evaluate --any-palette)")
+        if field == "mode":
+            refuse(f"the {a.mode!r} palette", f"the {b.mode!r} palette", fix)
+        refuse(f"the {a.mode!r} palette with {field} {getattr(a, field)}",
+               f"the {b.mode!r} palette with {field} {getattr(b, field)}", fix)
+
+
