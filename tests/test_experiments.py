@@ -16,7 +16,9 @@ from oneshot.training.scoring import wilson_interval
 from oneshot.experiments.fig2 import PROFILES, plan, run_context
 from oneshot.training import run_folder
 from oneshot.experiments.summary import plot, summarise
-from oneshot.experiments.sweep import COLUMNS, RunSpec, sweep
+from oneshot.experiments import rows as sweep_rows
+from oneshot.experiments.rows import COLUMNS, RunSpec
+from oneshot.experiments.sweep import sweep
 from test_checkpoint import _set, rewrite
 
 TINY = PROFILES["tiny"]
@@ -99,7 +101,7 @@ def test_sweep_writes_one_row_per_run_with_the_columns(tmp_path):
         lo, hi = wilson_interval(expected["successes"], expected["trials"])
         assert (float(row["ci_low"]), float(row["ci_high"])) == (round(lo, 4), round(hi, 4))
         assert json.loads(row["notes"]) == {"final_loss": 0.5 + spec.seed, "profile": "tiny"}
-    assert without_time(sweeping.read_rows(tmp_path / "results" / "runs.csv")) == without_time(rows)
+    assert without_time(sweep_rows.read_rows(tmp_path / "results" / "runs.csv")) == without_time(rows)
 
 
 def test_second_sweep_redoes_nothing(tmp_path):
@@ -116,7 +118,7 @@ def test_failed_run_is_left_out_and_retried_alone(tmp_path, capsys):
     (tmp_path / "work" / bad.run_id / "fail").touch()
     rows = run_sweep(tmp_path)
     assert len(rows) == len(plan(TINY)) - 1
-    assert bad.run_id not in {sweeping.row_id(r) for r in sweeping.read_rows(tmp_path / "results" / "runs.csv")}
+    assert bad.run_id not in {sweep_rows.row_id(r) for r in sweep_rows.read_rows(tmp_path / "results" / "runs.csv")}
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and bad.run_id in err[0] and "RuntimeError: told to fail" in err[0]
     assert "told to fail" in (tmp_path / "work" / bad.run_id / "error.txt").read_text()
@@ -133,8 +135,8 @@ def test_bad_results_are_run_failures():
                              ({"trials": 3}, "'successes' and 'trials'"),
                              ({"successes": 1, "trials": 3, "rate": 0.3}, "fills those columns itself")):
         with pytest.raises(ValueError, match=message):
-            sweeping.row_of(spec, result, 1.0)
-    row = sweeping.row_of(spec, {"successes": 1, "trials": 3, "wall_seconds": 99.0, "loss": np.float32(0.5),
+            sweep_rows.row_of(spec, result, 1.0)
+    row = sweep_rows.row_of(spec, {"successes": 1, "trials": 3, "wall_seconds": 99.0, "loss": np.float32(0.5),
                                     "steps": np.int64(7)}, 1.0)
     assert row["wall_seconds"] == 99.0 and json.loads(row["notes"]) == {"loss": 0.5, "steps": 7}
 
@@ -165,22 +167,22 @@ def test_thread_and_process_pools_give_the_same_rows(tmp_path):
     threads = run_sweep(tmp_path / "threads")
     processes = sweep(plan(TINY)[:4], tmp_path / "processes" / "results", tmp_path / "processes" / "work",
                       run_context(TINY, tmp_path / "threads" / "data"), run_fn=fake_run, progress=False)
-    by_id = {sweeping.row_id(r): r for r in without_time(threads)}
-    assert without_time(processes) == sorted((by_id[r.run_id] for r in plan(TINY)[:4]), key=sweeping.row_order)
+    by_id = {sweep_rows.row_id(r): r for r in without_time(threads)}
+    assert without_time(processes) == sorted((by_id[r.run_id] for r in plan(TINY)[:4]), key=sweep_rows.row_order)
 
 
 def test_dask_executor_gives_the_same_rows(tmp_path):
     distributed = pytest.importorskip("distributed")
     runs = plan(TINY)[:2]
     threads = run_sweep(tmp_path / "threads")
-    by_id = {sweeping.row_id(r): r for r in without_time(threads)}
+    by_id = {sweep_rows.row_id(r): r for r in without_time(threads)}
     # In-process workers: a cluster of processes takes ~5 s to start (the process pool test above
     # covers pickling); what this checks is that Dask's executor plugs in unchanged.
     with distributed.Client(processes=False, n_workers=2, threads_per_worker=1, dashboard_address=None) as client:
         rows = sweep(runs, tmp_path / "dask" / "results", tmp_path / "dask" / "work",
                      run_context(TINY, tmp_path / "threads" / "data"), executor=client.get_executor(pure=False),
                      run_fn=fake_run, progress=False)
-    assert without_time(rows) == sorted((by_id[r.run_id] for r in runs), key=sweeping.row_order)
+    assert without_time(rows) == sorted((by_id[r.run_id] for r in runs), key=sweep_rows.row_order)
 
 
 def test_summarise_pools_seeds():
@@ -217,7 +219,7 @@ def test_cli_writes_summary_and_says_when_the_plot_needs_matplotlib(tmp_path, mo
     monkeypatch.setattr(command, "run_one", fake_run)      # the default run_fn, in threads
     monkeypatch.setattr(command, "PLOTS", False)
     monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor",
-                        lambda workers, mp_context: concurrent.futures.ThreadPoolExecutor(workers))
+                        lambda workers, mp_context, **_: concurrent.futures.ThreadPoolExecutor(workers))
     argv = ["fig2", "--profile", "tiny", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
             "--data", str(tmp_path / "data"), "--no-progress"]
     assert command.main(argv) == 0
@@ -234,7 +236,7 @@ def test_cli_writes_no_summary_until_every_run_finished(tmp_path, monkeypatch, c
     monkeypatch.setattr(command, "run_one", fake_run)
     monkeypatch.setattr(command, "PLOTS", False)
     monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor",
-                        lambda workers, mp_context: concurrent.futures.ThreadPoolExecutor(workers))
+                        lambda workers, mp_context, **_: concurrent.futures.ThreadPoolExecutor(workers))
     argv = ["fig2", "--profile", "tiny", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
             "--data", str(tmp_path / "data"), "--no-progress"]
     bad = plan(TINY)[0]
@@ -253,7 +255,7 @@ def test_cli_seeds_sweeps_part_of_the_profile_into_files_of_its_own(tmp_path, mo
     summary.json (which notebook 04 reads as the whole figure) is not written."""
     monkeypatch.setattr(command, "run_one", fake_run)
     monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor",
-                        lambda workers, mp_context: concurrent.futures.ThreadPoolExecutor(workers))
+                        lambda workers, mp_context, **_: concurrent.futures.ThreadPoolExecutor(workers))
     argv = ["fig2", "--profile", "tiny", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
             "--data", str(tmp_path / "data"), "--no-progress", "--seeds", "1"]
     assert command.main(argv) == 0
@@ -273,7 +275,7 @@ def test_cli_seeds_sweeps_part_of_the_profile_into_files_of_its_own(tmp_path, mo
     (["fig2", "--profile", "tiny", "--seeds", "7"], "--seeds must be distinct seeds of the tiny profile, [0, 1]"),
     (["fig2", "--profile", "tiny", "--seeds", "0", "0"], "--seeds must be distinct"),
     (["fig2", "--profile", "huge"], "invalid choice: 'huge'"),
-    (["fig2", "--workers", "0"], "--workers must be >= 1"),
+    (["fig2", "--workers", "0"], "argument --workers: expected a whole number >= 1"),
     (["fig2", "--workers", "2", "--local-cluster", "2"], "not allowed with argument"),
     (["fig2", "--local-cluster", "0"], "--local-cluster must be >= 1"),
     (["fig3"], "invalid choice: 'fig3'"),

@@ -24,7 +24,7 @@ from PIL import Image
 
 from oneshot import collect, evaluate
 from oneshot.data import datasets, npz
-from oneshot.experiments import fig2, summary, sweep
+from oneshot.experiments import fig2, rows as sweep, summary
 from oneshot.tools import viz
 from oneshot.training import checkpoint, run_folder
 from test_checkpoint import save_tiny

@@ -28,11 +28,13 @@ import contextlib
 import dataclasses
 import os
 import shlex
+import signal
 import sys
 
 from oneshot.experiments.fig2 import LABELS, LINES, PROFILES, ensure_data, plan, run_context, run_one
 from oneshot.experiments.summary import PLOTS, plot, summarise, write_summary
 from oneshot.experiments.sweep import SweepLocked, sweep
+from oneshot.tools import cli
 
 # Optional extras: the sweep runs without them and says which one a flag or the plot needs.
 try:
@@ -41,7 +43,12 @@ except ImportError:
     distributed = None
 
 
-# --- command line ------------------------------------------------------------------------------------
+SCHEDULER_TIMEOUT = "10s"     # how long to try a Dask scheduler before saying it cannot be reached
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
 
 class _Parser(argparse.ArgumentParser):
     """argparse, but an argument error is one line on stderr (and exit status 2)."""
@@ -55,7 +62,7 @@ def _executor(args, stack):
     if args.scheduler or args.local_cluster:
         cluster = args.scheduler or stack.enter_context(
             distributed.LocalCluster(n_workers=args.local_cluster, threads_per_worker=1, processes=True))
-        client = stack.enter_context(distributed.Client(cluster))
+        client = stack.enter_context(distributed.Client(cluster, timeout=SCHEDULER_TIMEOUT))
         print(f"Dask scheduler {client.scheduler.address}: {len(client.scheduler_info()['workers'])} workers",
               file=sys.stderr)
         return client.get_executor(pure=False)
@@ -69,22 +76,24 @@ def main(argv=None):
     commands = p.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
     f = commands.add_parser("fig2", help="one-shot success vs. meta-training dataset size, per method")
     f.add_argument("--profile", choices=sorted(PROFILES), default="quick", help="named sweep (default: quick)")
-    f.add_argument("--out", default=None, help="results folder (default: oneshot/results/fig2_<profile>)")
-    f.add_argument("--work", default=os.path.join("runs", "fig2"), help="runs' work folders (default: runs/fig2)")
-    f.add_argument("--data", default="data/fig2", help="datasets folder, given to every run (default: data/fig2)")
+    f.add_argument("--out", type=cli.writable_folder, default=None,
+                   help="results folder (default: results/fig2_<profile>, here)")
+    f.add_argument("--work", type=cli.writable_folder, default=os.path.join("runs", "fig2"),
+                   help="runs' work folders (default: runs/fig2)")
+    f.add_argument("--data", type=cli.writable_folder, default="data/fig2",
+                   help="datasets folder, given to every run (default: data/fig2)")
     f.add_argument("--seeds", type=int, nargs="+", default=None, metavar="S",
                    help="only these of the profile's seeds (default: all of them); their summary and figure "
                         "are summary_seeds<S>.json and fig2_seeds<S>.png, beside the whole profile's")
     f.add_argument("--no-progress", action="store_true", help="no progress bar")
     where = f.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=None, help="runs at a time in a process pool (default 2)")
+    where.add_argument("--workers", type=cli.positive_int, default=None,
+                       help="runs at a time in a process pool (default 2; at most the cores)")
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help='run on a running Dask scheduler, e.g. tcp://host:8786 (pip install ".[cluster]")')
     where.add_argument("--local-cluster", type=int, default=None, metavar="N",
                        help='start a Dask cluster of N one-thread worker processes here (pip install ".[cluster]")')
     args = p.parse_args(argv)
-    if args.workers is not None and args.workers < 1:
-        f.error(f"--workers must be >= 1; got {args.workers}")
     if args.local_cluster is not None and args.local_cluster < 1:
         f.error(f"--local-cluster must be >= 1; got {args.local_cluster}")
     if (args.scheduler or args.local_cluster) and distributed is None:
@@ -100,22 +109,32 @@ def main(argv=None):
             seeds = f"seed{'s' * (len(chosen) > 1)} {', '.join(map(str, chosen))} of {len(cfg.seeds)}"
         cfg = dataclasses.replace(cfg, seeds=tuple(sorted(args.seeds)))
     out = args.out or os.path.join("results", f"fig2_{cfg.name}")
-    work = args.work
+    try:
+        cli.writable_folder(out)
+    except argparse.ArgumentTypeError as e:
+        f.error(f"argument --out: {e}")
     runs = plan(cfg)
-    ensure_data(cfg, args.data, progress=not args.no_progress)
-    with contextlib.ExitStack() as stack:
-        try:
-            executor = _executor(args, stack)
-        except OSError as e:                   # Client() could not reach the scheduler
-            sys.exit(f"error: no Dask scheduler at {args.scheduler}: {e}")
-        try:
-            rows = sweep(runs, out, work, run_context(cfg, args.data), run_one, executor=executor,
-                         progress=not args.no_progress, workers=args.workers or 2)
-        except SweepLocked as e:
-            sys.exit(f"error: {e}")
-        except KeyboardInterrupt:
-            sys.exit(f"interrupted; the finished runs are in {os.path.join(out, 'runs.csv')}: "
-                     f"run the same command to resume")
+    workers = min(args.workers or 2, os.cpu_count() or 1, len(runs))      # more would only share the cores
+    previous = signal.signal(signal.SIGTERM, _interrupt)    # a plain kill stops the sweep as Ctrl-C does
+    try:
+        with contextlib.ExitStack() as stack:
+            try:
+                executor = _executor(args, stack)  # before any work: an unreachable scheduler fails now
+            except (OSError, ValueError) as e:
+                f.error(f"argument --scheduler: no Dask scheduler at {args.scheduler!r} ({e}); start one, or "
+                        f"drop --scheduler to run here")
+            ensure_data(cfg, args.data, progress=not args.no_progress)
+            try:
+                rows = sweep(runs, out, args.work, run_context(cfg, args.data), run_one, executor=executor,
+                             progress=not args.no_progress, workers=workers)
+            except SweepLocked as e:
+                sys.exit(f"error: {e}")
+    except KeyboardInterrupt:
+        print(f"error: interrupted; the finished runs are in {os.path.join(out, 'runs.csv')} and the others "
+              f"continue from their checkpoints: run the same command to resume", file=sys.stderr)
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     if len(rows) < len(runs):                  # a summary is of the whole sweep: the notebooks trust it
         print(f"{len(rows)} of {len(runs)} runs finished ({os.path.join(out, 'runs.csv')}); run the same "
               f"command again to finish the others: no summary or figure until then")

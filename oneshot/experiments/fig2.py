@@ -37,7 +37,7 @@ from oneshot.training import checkpoint, run_folder
 from oneshot.training.config import PROFILES as PROFILES_TRAIN
 from oneshot.expert.controller import ExpertConfig
 from oneshot.world.palette import PaletteConfig
-from oneshot.experiments.sweep import RunSpec, read_rows
+from oneshot.experiments.rows import RunSpec, read_rows
 from oneshot.world.reach import WorldConfig
 
 

@@ -1,0 +1,119 @@
+"""The rows of a sweep: one run (`RunSpec`), its runs.csv row (`row_of`), and runs.csv itself, written
+atomically and read without trust (`read_rows` names a damaged line)."""
+import csv
+import io
+import json
+import os
+from dataclasses import dataclass
+
+from oneshot.tools.files import atomic_write, open_read
+from oneshot.training.scoring import wilson_interval
+
+
+# runs.csv, in this column order. `notes`: whatever else run_fn returned, as compact JSON.
+COLUMNS = ("method", "size", "colours", "demos_per_colour", "seed", "iterations", "wall_seconds",
+           "successes", "trials", "rate", "ci_low", "ci_high", "notes")
+_INT_COLUMNS = ("size", "colours", "demos_per_colour", "seed", "iterations", "successes", "trials")
+_FLOAT_COLUMNS = ("wall_seconds", "rate", "ci_low", "ci_high")
+ROW_FILE = "row.json"                          # in a run's work folder: the row it produced
+
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run: `method` meta-trained for `iterations` meta-iterations on `colours` training colours x
+    `demos` demos per colour, with seed `seed`."""
+    method: str
+    colours: int
+    demos: int
+    seed: int
+    iterations: int
+
+    def __post_init__(self):
+        for name in ("colours", "demos"):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 1):
+                raise ValueError(f"{name} must be an int >= 1; got {getattr(self, name)!r}")
+        for name in ("seed", "iterations"):
+            if not (isinstance(getattr(self, name), int) and getattr(self, name) >= 0):
+                raise ValueError(f"{name} must be an int >= 0; got {getattr(self, name)!r}")
+
+    @property
+    def size(self):
+        """Meta-training demonstrations: colours x demos per colour."""
+        return self.colours * self.demos
+
+    @property
+    def run_id(self):
+        """A stable, filesystem-safe name, e.g. "lstm_c72_d12_s1_i6000": the run's work folder."""
+        return f"{self.method}_c{self.colours}_d{self.demos}_s{self.seed}_i{self.iterations}"
+
+
+def row_of(spec, result, wall_seconds):
+    """The runs.csv row (a dict over COLUMNS) of a finished run, from run_fn's result dict."""
+    if not isinstance(result, dict) or "successes" not in result or "trials" not in result:
+        raise ValueError(f"run_fn must return a dict with 'successes' and 'trials'; got {result!r}")
+    successes, trials = int(result["successes"]), int(result["trials"])
+    if not 0 <= successes <= trials or trials < 1:
+        raise ValueError(f"run_fn returned {successes} successes in {trials} trials "
+                         f"(need 0 <= successes <= trials, trials >= 1)")
+    clash = sorted(set(result) & set(COLUMNS) - {"successes", "trials", "wall_seconds"})
+    if clash:
+        raise ValueError(f"run_fn returned {clash}: the sweep fills those columns itself")
+    extra = {k: v for k, v in result.items() if k not in COLUMNS}
+    lo, hi = wilson_interval(successes, trials)
+    return {"method": spec.method, "size": spec.size, "colours": spec.colours, "demos_per_colour": spec.demos,
+            "seed": spec.seed, "iterations": spec.iterations,
+            "wall_seconds": round(float(result.get("wall_seconds", wall_seconds)), 2),
+            "successes": successes, "trials": trials, "rate": round(successes / trials, 4),
+            "ci_low": round(lo, 4), "ci_high": round(hi, 4),
+            "notes": json.dumps(extra, sort_keys=True, separators=(",", ":"),
+                                default=lambda x: x.item() if hasattr(x, "item") else str(x))}
+
+
+def row_id(row):
+    """The run_id of a runs.csv row."""
+    return RunSpec(row["method"], row["colours"], row["demos_per_colour"], row["seed"], row["iterations"]).run_id
+
+
+def read_rows(path):
+    """The rows of a runs.csv (typed: ints, floats, notes as its JSON string); [] if there is none.
+    A damaged file (another header, a cut or bogus row, successes outside 0..trials, notes that are not
+    a whole JSON object) raises ValueError naming the file and the line."""
+    if not os.path.exists(path):
+        return []
+    with open_read(path, "r", newline="") as f:
+        reader = csv.DictReader(f)
+        if tuple(reader.fieldnames or ()) != COLUMNS:
+            raise ValueError(f"{path}: columns {reader.fieldnames} are not runs.csv's {list(COLUMNS)}; "
+                             f"move the file away to start the sweep afresh")
+        rows = [(reader.line_num, row) for row in reader]
+    for line, row in rows:
+        try:
+            if None in row or None in row.values():
+                raise ValueError(f"it has {len(row) - (None in row)} fields, not {len(COLUMNS)}")
+            row.update({k: int(row[k]) for k in _INT_COLUMNS})
+            row.update({k: float(row[k]) for k in _FLOAT_COLUMNS})
+            if not 0 <= row["successes"] <= row["trials"] or row["trials"] < 1:
+                raise ValueError(f"{row['successes']} successes in {row['trials']} trials")
+            if not isinstance(json.loads(row["notes"]), dict):
+                raise ValueError("its notes are not a JSON object")
+            row_id(row)
+        except (ValueError, TypeError) as e:
+            raise ValueError(f"{path}, line {line}: not a runs.csv row ({e}); delete that line (its run is "
+                             f"then done again) or move the file away") from None
+    return [row for _, row in rows]
+
+
+def row_order(row):
+    """The order of runs.csv: (method, size, seed)."""
+    return row["method"], row["size"], row["seed"], row["iterations"]
+
+
+def write_rows(rows, path):
+    """Write runs.csv atomically, sorted by (method, size, seed): never half a file at `path`."""
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(sorted(rows, key=row_order))
+    with atomic_write(path) as f:
+        f.write(text.getvalue().encode("utf-8"))

@@ -1,0 +1,157 @@
+"""A sweep's results and processes under faults and misuse (oneshot/experiments/sweep.py, rows.py):
+rows it did not produce are never taken for done, two sweeps that share a results folder keep each
+other's rows, a damaged runs.csv is named with its line, and the pool's processes end with the sweep
+however it ends (kill -9, SIGTERM, Ctrl-C once or twice)."""
+import contextlib
+import fcntl
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from oneshot.experiments import rows as sweep_rows
+from oneshot.experiments.rows import RunSpec
+from oneshot.experiments.sweep import SweepLocked, sweep
+from test_experiments import fake_run
+
+def calls(run_dir):
+    """How many times fake_run ran in this run's folder."""
+    return len(list(run_dir.glob("call-*")))
+
+
+RUNS = [RunSpec("mil-conv0", c, 3, s, 2) for c in (3, 4) for s in (0, 1)]
+CONTEXT = {"trials": 2, "profile": "t"}
+
+
+def test_rows_the_work_folder_did_not_produce_are_run_again_and_replaced(tmp_path):
+    """The committed results of a fresh clone (a runs.csv whose work folders are elsewhere) are not a
+    reproduction: every run is done here, and each row replaced by this work folder's."""
+    committed = sweep(RUNS, tmp_path / "theirs", tmp_path / "their_work", CONTEXT, fake_run, progress=False)
+    shutil.copytree(tmp_path / "theirs", tmp_path / "results")                   # what a clone holds
+    mine = sweep(RUNS, tmp_path / "results", tmp_path / "my_work", CONTEXT, fake_run, progress=False)
+    assert all(calls(tmp_path / "my_work" / r.run_id) == 1 for r in RUNS)      # every run done here
+    without_time = lambda rows: [{k: v for k, v in r.items() if k != "wall_seconds"} for r in rows]
+    assert without_time(mine) == without_time(committed)                         # the same numbers, here
+    again = sweep(RUNS, tmp_path / "results", tmp_path / "my_work", CONTEXT, fake_run, progress=False)
+    assert again == mine and all(calls(tmp_path / "my_work" / r.run_id) == 1 for r in RUNS)   # now done
+
+
+def test_a_row_changed_by_hand_is_not_done(tmp_path):
+    sweep(RUNS, tmp_path / "results", tmp_path / "work", CONTEXT, fake_run, progress=False)
+    csv = tmp_path / "results" / "runs.csv"
+    rows = sweep_rows.read_rows(csv)
+    rows[0]["successes"] = rows[0]["trials"]                                     # a better number, by hand
+    sweep_rows.write_rows(rows, csv)
+    sweep(RUNS, tmp_path / "results", tmp_path / "work", CONTEXT, fake_run, progress=False)
+    assert sorted(calls(tmp_path / "work" / r.run_id) for r in RUNS) == [1, 1, 1, 2]
+
+
+def test_two_sweeps_sharing_a_results_folder_keep_each_others_rows(tmp_path):
+    first = [r for r in RUNS if r.seed == 0]
+    second = [r for r in RUNS if r.seed == 1]
+    sweep(first, tmp_path / "out", tmp_path / "work0", CONTEXT, fake_run, progress=False)
+    sweep(second, tmp_path / "out", tmp_path / "work1", CONTEXT, fake_run, progress=False)
+    assert len(sweep_rows.read_rows(tmp_path / "out" / "runs.csv")) == len(RUNS)
+    # while one sweep writes to the results folder, another is refused at once
+    (tmp_path / "out" / "runs.csv").unlink()
+    with open(tmp_path / "out" / ".sweep.lock", "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        with pytest.raises(SweepLocked, match="another sweep is running with"):
+            sweep(second, tmp_path / "out", tmp_path / "work2", CONTEXT, fake_run, progress=False)
+    assert not (tmp_path / "work2").exists() or not any((tmp_path / "work2").iterdir())
+
+
+GOOD = "mil-conv0,9,3,3,0,2,1.0,1,4,0.25,0.05,0.7,{}"
+
+
+@pytest.mark.parametrize("text, says", [
+    ("method,size\n" + GOOD + "\n", "columns"),
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD + "\n" + GOOD[:30] + "\n", "line 3: not a runs.csv row"),
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace(",1,4,", ",5,4,") + "\n", "line 2: .*5 successes in 4 trials"),
+    (",".join(sweep_rows.COLUMNS) + "\nhello,world\n", "line 2: not a runs.csv row"),
+    (",".join(sweep_rows.COLUMNS) + '\n' + GOOD.replace("{}", '"{""per_colour"":{""1"":')[:-1] + "\n", "line 2"),
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace(",2,1.0,", ",two,1.0,") + "\n", "line 2"),
+])
+def test_a_damaged_runs_csv_is_named_with_its_line(tmp_path, text, says):
+    path = tmp_path / "runs.csv"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=says):
+        sweep_rows.read_rows(path)
+
+
+SWEEP_SCRIPT = """
+import signal, sys, time
+sys.path.insert(0, {tests!r})
+def interrupt(signum, frame):                   # as the command does: a plain kill is Ctrl-C
+    raise KeyboardInterrupt
+signal.signal(signal.SIGTERM, interrupt)
+from oneshot.experiments.rows import RunSpec
+from oneshot.experiments.sweep import sweep
+import test_sweep_faults
+runs = [RunSpec("mil-conv0", 3, 3, s, 2) for s in range(4)]
+try:
+    sweep(runs, {out!r}, {work!r}, {{}}, test_sweep_faults.slow_run, progress=False, workers=2, stop_after=5.0)
+except KeyboardInterrupt:
+    print("interrupted", flush=True)
+    sys.exit(130)
+"""
+
+
+def slow_run(spec, run_dir, context):
+    """A run that says its pid (in run_dir/pid) and then works for a minute, unless stopped."""
+    with open(os.path.join(run_dir, "pid"), "w") as f:
+        f.write(str(os.getpid()))
+    time.sleep(60)
+    return {"successes": 0, "trials": 1}
+
+
+def _alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f"/proc/{pid}/stat") as f:                         # a zombie is dead
+        return f.read().split(")")[-1].split()[0] != "Z"
+
+
+def _start_sweep(tmp_path):
+    script = SWEEP_SCRIPT.format(tests=os.path.dirname(os.path.abspath(__file__)), out=str(tmp_path / "out"),
+                                 work=str(tmp_path / "work"))
+    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline, pids = time.time() + 60, []
+    while time.time() < deadline and len(pids) < 2:
+        pids = [int(p.read_text()) for p in (tmp_path / "work").glob("*/pid") if p.read_text()]
+        time.sleep(0.1)
+    assert len(pids) == 2, "the sweep's two workers never started"
+    return parent, pids
+
+
+def _all_gone(pids, seconds):
+    deadline = time.time() + seconds
+    while time.time() < deadline and any(_alive(p) for p in pids):
+        time.sleep(0.1)
+    return not any(_alive(p) for p in pids)
+
+
+@pytest.mark.parametrize("how", ["SIGKILL", "SIGTERM", "SIGINT", "SIGINT twice"])
+def test_the_pools_workers_end_with_the_sweep_however_it_ends(tmp_path, how):
+    parent, pids = _start_sweep(tmp_path)
+    try:
+        for _ in range(2 if how.endswith("twice") else 1):
+            parent.send_signal(getattr(signal, how.split()[0]))
+            time.sleep(0.2)
+        out, err = parent.communicate(timeout=20)               # the sweep itself ends, never hangs
+        assert _all_gone(pids, 10), f"workers still alive after {how}"
+        if how != "SIGKILL":                                     # one line, as for Ctrl-C; a second Ctrl-C
+            assert "interrupted" in out and parent.returncode in (130, -signal.SIGINT), err   # may end it at once
+            assert "Traceback" not in err and "Exception" not in err, err
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            parent.kill()
+        for pid in pids:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
