@@ -92,17 +92,19 @@ def verdict(number, outcomes):
     """The verdict on an exercise's outcomes: "correct", "not yet: ..." or "flagged: ..." (see `Graded`)."""
     cases, wants = _expectations(number)
     result = judge(EXERCISES[number], CHECKERS[number], outcomes.__getitem__, cases, wants)
-    return "correct" if result.passed else f"{'flagged' if result.flagged else 'not yet'}: {result.message}"
+    words = wire.clean(result.message, 2000)             # quotes the submission's values: no control characters
+    return "correct" if result.passed else f"{'flagged' if result.flagged else 'not yet'}: {words}"
 
 
 def grade_submission(path, numbers, limits=Limits(), hidden=()):
     """Grade one submission on exercises `numbers`: a Graded."""
-    graded, pending = Graded(Path(path).name + ("/" if Path(path).is_dir() else ""), list(numbers)), list(numbers)
-    while pending:
+    label = wire.clean(Path(path).name + ("/" if Path(path).is_dir() else ""), 120)
+    graded, pending = Graded(label, list(numbers)), list(numbers)
+    while pending and not stopping.is_set():
         try:
             messages, ending, why = run_sandbox(path, pending, limits, _valid, hidden)
-        except SubmissionError as e:
-            graded.load_error = str(e)
+        except (SubmissionError, OSError) as e:            # too large, unreadable: said, not fatal
+            graded.load_error = wire.clean(f"could not copy it: {e}" if isinstance(e, OSError) else str(e))
             return graded
         loaded = False
         for message in messages:
@@ -132,7 +134,7 @@ def grade(folder, numbers=None, limits=Limits(), jobs=None, out=print):
     """Grade every submission in `folder` on exercises `numbers` (default: all): one line per submission
     and exercise, then a total, printed in name order as they finish. Returns [Graded]."""
     found, numbers = submissions(folder), sorted(numbers or EXERCISES)
-    labels = [p.name + ("/" if p.is_dir() else "") for p in found]
+    labels = [wire.clean(p.name + ("/" if p.is_dir() else ""), 120) for p in found]
     width, graded = max(map(len, labels)), []
     for number in numbers:
         _expectations(number)
@@ -144,7 +146,8 @@ def grade(folder, numbers=None, limits=Limits(), jobs=None, out=print):
                     out(line)
                 graded.append(one)
         except BaseException:
-            stopping.set()                              # Ctrl-C: every sandbox is ended within a second
+            stopping.set()                              # Ctrl-C: every sandbox is ended within a second,
+            pool.shutdown(wait=False, cancel_futures=True)          # and none is started
             raise
     return graded
 

@@ -139,7 +139,7 @@ class Frames:
     longer than MAX_FRAME, or not a JSON object, raises WireError."""
 
     def __init__(self):
-        self.buffer = b""
+        self.buffer = bytearray()
 
     def feed(self, chunk):
         self.buffer += chunk
@@ -150,7 +150,8 @@ class Frames:
                 raise WireError(f"a frame of {size} bytes (at most {MAX_FRAME})")
             if len(self.buffer) < 4 + size:
                 break
-            payload, self.buffer = self.buffer[4:4 + size], self.buffer[4 + size:]
+            payload = bytes(self.buffer[4:4 + size])
+            del self.buffer[:4 + size]
             try:
                 message = json.loads(payload)
             except (ValueError, RecursionError):
