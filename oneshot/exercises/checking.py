@@ -124,8 +124,12 @@ def _same(a, b):
 
 
 def error_words(error):
-    """An exception in one line: "ZeroDivisionError: division by zero"."""
-    text = str(error).strip().splitlines()
+    """An exception in one line: "ZeroDivisionError: division by zero" (its name alone if its message
+    cannot be had: a student's exception whose __str__ raises)."""
+    try:
+        text = str(error).strip().splitlines()
+    except Exception:
+        text = []
     text = text[0] if text else ""
     return f"{type(error).__name__}: {text[:200]}" if text else type(error).__name__
 

@@ -7,7 +7,7 @@
                      no TCP; no signals to processes outside (Landlock, Linux >= 5.13; TCP >= 6.7,
                      signals >= 6.12; less on older kernels, nothing where it is off)
     drop_privileges  run as `nobody` when the grader runs as root (root ignores RLIMIT_NPROC), with no
-                     capabilities, owning root's files only for reading Python (Landlock limits them)
+                     capabilities (under Landlock, owning root's files, so Python under /root imports)
     die_with_parent, become_subreaper, kill_descendants   no process outlives the grading of its submission:
                      a subreaper inherits whatever a submission forks, even in a session of its own,
                      and kills it all at the end
@@ -123,12 +123,12 @@ def landlock(writable, readable, hidden=(), files=("/dev/null",)):
     return abi if done == 0 else 0
 
 
-def drop_privileges(uid=NOBODY):
+def drop_privileges(uid=NOBODY, keep_files=False):
     """If this process is root, become user `uid` (real, effective and saved; no groups, no capabilities,
-    none to regain on exec) but keep root's FILE identity (fsuid 0): RLIMIT_NPROC counts `uid`'s
-    processes (root is exempt from it), signals and ptrace are `uid`'s, and files are root's as their
-    owner only (no capability overrides a permission), so Python installed under /root (mode 700)
-    still imports; Landlock decides which of them may be read or written. Returns whether it did."""
+    none to regain on exec): RLIMIT_NPROC counts `uid`'s processes (root is exempt from it), signals
+    and ptrace are `uid`'s. With `keep_files` (when Landlock confines the files), keep root's FILE
+    identity (fsuid 0), as the owner only (no capability overrides a permission), so Python installed
+    under /root (mode 700) still imports. Returns whether it dropped root."""
     if os.geteuid() != 0:
         return False
     libc = _libc()
@@ -138,11 +138,12 @@ def drop_privileges(uid=NOBODY):
     os.setgroups([])
     os.setresgid(uid, uid, uid)
     os.setresuid(uid, uid, uid)                      # fsuid follows: back to 0 with CAP_SETUID, then no caps
-    _capset(1 << _CAP_SETUID)
-    libc.setfsuid(0)
+    if keep_files:
+        _capset(1 << _CAP_SETUID)
+        libc.setfsuid(0)
     _capset(0)
     libc.prctl(_PR_SET_KEEPCAPS, 0, 0, 0, 0)
-    return libc.setfsuid(-1) == 0 and os.getuid() == uid
+    return os.getuid() == uid
 
 
 def _capset(mask):

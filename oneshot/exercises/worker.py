@@ -80,8 +80,8 @@ def _work(job, channel, cases, supervisor):
     answers = [f for n in EXERCISES for f in CHECKERS[n].package] + list(SOLUTIONS.values())
     poison.arm(answers, boundary=checking.attempt.__code__)
     package.check = lambda *args, **kwargs: None         # a notebook's check(5, ...) cells: grading is elsewhere
-    confine.landlock([job["workdir"]], job["readable"], job["hidden"])
-    confine.drop_privileges()
+    confined = confine.landlock([job["workdir"]], job["readable"], job["hidden"])
+    confine.drop_privileges(keep_files=bool(confined))
     os.closerange(3, channel)
     os.closerange(channel + 1, 1 << 16)
     sys.stdin = open(os.devnull)
@@ -96,14 +96,15 @@ def _work(job, channel, cases, supervisor):
         if function is None:
             wire.send(channel, {"event": "result", "exercise": n, "missing": True})
             continue
-        outcomes = [_outcome(EXERCISES[n], case, poison.submission(function), checking) for case in cases[n]]
+        room = wire.MAX_FRAME // (len(cases[n]) + 1)       # bytes each case's answer may take in the frame
+        outcomes = [_outcome(EXERCISES[n], case, poison.submission(function), checking, room) for case in cases[n]]
         wire.send(channel, {"event": "result", "exercise": n, "outcomes": outcomes})
     sys.stdout.flush()
     sys.stderr.flush()
     return 0
 
 
-def _outcome(exercise, case, function, checking):
+def _outcome(exercise, case, function, checking, room):
     """One case's Outcome, as wire data; a tripwire the function hit counts even if it caught PackageUsed."""
     poison.tripped.clear()
     with warnings.catch_warnings(), np.errstate(all="ignore"):
@@ -118,6 +119,8 @@ def _outcome(exercise, case, function, checking):
         return {"error": outcome.error}
     try:
         value = wire.encode(outcome.value)
+        if len(json.dumps(value)) > room:
+            value = {"object": f"a result of more than {room >> 20} MB"}
     except BaseException:                                # a value whose own code raises while it is read
         value = {"object": "a value the checker cannot read"}
     return {"value": value, "changed": outcome.changed}
