@@ -102,9 +102,9 @@ def _grade(args):
     available, jobs = cli.available_memory_bytes(), min(args.jobs or os.cpu_count() or 1, len(found))
     need = jobs * (args.memory + _BASELINE_MB) << 20
     if available is not None and need > available:
-        return _bad(f"--jobs {jobs} x --memory {args.memory} MB (+{_BASELINE_MB} MB each for Python) would take "
-                    f"{cli.human_bytes(need)}, and {cli.human_bytes(available)} is available; use fewer jobs "
-                    f"or less memory")
+        return _bad(f"{jobs} submissions at once (--jobs) x --memory {args.memory} MB (+{_BASELINE_MB} MB each for "
+                    f"Python) would take {cli.human_bytes(need)}, and {cli.human_bytes(available)} is available; "
+                    f"use fewer jobs or less memory")
     _warn()
     previous = signal.signal(signal.SIGTERM, _interrupt)       # a plain kill ends grading as Ctrl-C does
     try:

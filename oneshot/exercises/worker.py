@@ -59,6 +59,9 @@ def main(text):
         status = 1
         try:
             status = _work(job, channel, cases, os.getppid())
+        except BaseException:                            # its last line is what the grader shows
+            import traceback
+            traceback.print_exc()
         finally:
             os._exit(status)
     _worker["pid"] = pid
