@@ -11,6 +11,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -265,8 +266,13 @@ def test_the_grader_run_from_the_class_folder_imports_no_student_module(tmp_path
                                                              "module") for line in run.stdout.splitlines())
 
 
+def _copies():
+    """The sandboxes' working copies in the temporary folder."""
+    return set(Path(tempfile.gettempdir()).glob("oneshot-grade-*"))
+
+
 def test_killing_the_grader_ends_every_process_a_submission_started(tmp_path):
-    tag = f"orphan-{os.getpid() % 100000}"
+    tag, before = f"orphan-{os.getpid() % 100000}", _copies()
     (tmp_path / "loop.py").write_text(ESCAPER.replace("escapee-{tag}", tag))
     grader = subprocess.Popen([sys.executable, "-m", "oneshot.exercises", "grade", str(tmp_path), "--timeout", "60"],
                               env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -278,9 +284,9 @@ def test_killing_the_grader_ends_every_process_a_submission_started(tmp_path):
         grader.kill()                                  # kill -9: no handler of the grader's runs
         grader.wait()
         deadline = time.monotonic() + 5
-        while _marked(tag) and time.monotonic() < deadline:
+        while (_marked(tag) or _copies() - before) and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert _marked(tag) == []
+        assert _marked(tag) == [] and _copies() - before == set()         # nothing left running, nor on disk
     finally:
         grader.kill()
         _kill_marked(tag)

@@ -16,6 +16,7 @@
 import importlib.util
 import json
 import os
+import shutil
 import signal
 import sys
 import warnings
@@ -26,17 +27,20 @@ from oneshot.exercises import confine, poison, wire
 
 BOOT = ("import sys; sys.path.insert(0, sys.argv[2]); sys.dont_write_bytecode = True; "
         "from oneshot.exercises.worker import main; main(sys.argv[1])")
-_worker = {"pid": None}
+_worker = {"pid": None, "workdir": None}
 
 
 def _end(signum=None, frame=None):
-    """The supervisor's last act: kill the worker and everything it started; exit."""
+    """The supervisor's last act when told to end (or when the grader died): kill the worker and
+    everything it started, remove the working copy (the grader may not be there to), exit."""
     if _worker["pid"]:
         try:
             os.kill(_worker["pid"], signal.SIGKILL)
         except ProcessLookupError:
             pass
     confine.kill_descendants()
+    if _worker["workdir"]:
+        shutil.rmtree(_worker["workdir"], ignore_errors=True)
     os._exit(128 + (signum or signal.SIGTERM))
 
 
@@ -44,6 +48,7 @@ def main(text):
     """The supervisor. JOB (JSON, from the grader): submission, workdir, numbers, memory, cpu,
     processes, readable, hidden, parent (the grader's pid)."""
     job = json.loads(text)
+    _worker["workdir"] = job["workdir"]
     channel = os.dup(1)
     os.dup2(2, 1)                                    # print() goes to the log, never into the channel
     signal.signal(signal.SIGTERM, _end)
