@@ -281,7 +281,7 @@ def test_cli_grade_survives_wrong_raising_looping_and_broken_submissions(tmp_pat
     (tmp_path / "bob.py").write_text(WRONG_1 + "\ndef imitation_loss(params, demo):\n    raise RuntimeError('oops')\n")
     (tmp_path / "carol.py").write_text("def is_success(e, t, r=0.05):\n    while True:\n        pass\n" + RIGHT_9)
     (tmp_path / "dave.py").write_text("def is_success(:\n")
-    assert main(["--grade", str(tmp_path), "--timeout", "3", "--jobs", "4"]) == 0
+    assert main(["grade", str(tmp_path), "--timeout", "3", "--jobs", "4"]) == 0
     lines = capsys.readouterr().out.splitlines()
     verdict = lambda who, n: next(line.split(None, 2)[2] for line in lines if line.split()[:2] == [who, str(n)])
     assert verdict("alice.py", 1) == "correct" and verdict("alice.py", 9) == "correct"
@@ -295,6 +295,8 @@ def test_cli_grade_survives_wrong_raising_looping_and_broken_submissions(tmp_pat
     assert totals == ["2/10 correct, 2 attempted", "0/10 correct, 2 attempted", "1/10 correct, 2 attempted",
                       "0/10 correct, 0 attempted"]
     assert main(["grade", str(tmp_path / "nobody")]) == 2
+    assert main(["--grade", str(tmp_path)]) == 2                   # one way to grade: a pointer to it
+    assert "use python -m oneshot.exercises grade" in capsys.readouterr().err
 
 
 # ----- the notebooks -----

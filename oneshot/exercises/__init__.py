@@ -16,8 +16,16 @@ package's own function (`oneshot.maml.imitation.imitation_loss` here); when it d
 mistake that explains the difference, if one does. `EXERCISES[n]` says what exercise n asks for;
 `reference(n)` is its reference solution (for teachers; `oneshot/exercises/solutions.py`).
 From a shell: `python -m oneshot.exercises check 5 --file my_solution.py`, and `grade DIR` for a
-class (`oneshot/exercises/__main__.py`).
+class (`oneshot/exercises/__main__.py`), both in a sandbox: `grading`, `sandbox`, `worker`, `confine`,
+`poison`, `wire`, `submissions`, `gradebook`.
 """
+import os as _os
+import sys as _sys
+
+if _sys.argv[:1] == ["-m"] and not _sys.flags.safe_path and _sys.path[:1] == [_os.getcwd()]:
+    del _sys.path[0]       # `python -m oneshot.exercises grade .` from a class's folder: a student's numpy.py
+    #                        there must not be imported as NumPy by the grader (python -P does the same)
+
 from oneshot.exercises import checks_baselines, checks_maml, checks_network, checks_world
 from oneshot.exercises.catalogue import EXERCISES
 from oneshot.exercises.checking import Exercise, Result, run

@@ -1,49 +1,127 @@
 """The exercises from a shell.
 
-    python -m oneshot.exercises list                              the exercises, and the function each asks for
-    python -m oneshot.exercises check 5 --file my_solution.py     check one function (the file defines it by name)
-    python -m oneshot.exercises grade DIR [--timeout 60] [--jobs N]   (or --grade DIR) grade a class
+    python -m oneshot.exercises list                            the exercises, their functions and notebooks
+    python -m oneshot.exercises check 5 --file my_solution.py   check one function (a .py file or notebook defining it)
+    python -m oneshot.exercises grade DIR [--exercises 5,6] [--csv grades.csv] [--json grades.json]
+                                          [--timeout 10] [--memory 1000] [--jobs N]     grade a class
 
-Exit status of `check`: 0 correct, 1 not yet, 2 bad input (a missing file, a file that fails to load
-or does not define the function); one line says which. `check` runs the student's code in this
-process, as `oneshot.exercises.check` does in a notebook; `grade` runs each submission in its own
-process with a timeout (`oneshot.exercises.grading`), and exits 0 once every submission is graded.
+A submission is a .py file, a notebook (.ipynb, executed or not: its code cells, `submissions`) or a
+folder of them. `check` and `grade` run it in a sandbox (`sandbox`, `worker`): its own process and
+working copy, limits on time, memory and processes, no writes outside its copy, and the verdict made
+here, from the values its functions returned, never from what it prints.
+
+Exit status of `check`: 0 correct, 1 not yet (wrong, raised, timed out, crashed, flagged), 2 bad input
+(a missing file, one that fails to load or does not define the function); one line says which.
+`grade` exits 0 once every submission is graded, 2 on bad input, 130 when interrupted (Ctrl-C, SIGTERM).
 """
 import argparse
+import math
+import os
+import signal
 import sys
 
-from oneshot.exercises import EXERCISES
-from oneshot.exercises.grading import SubmissionError, child, grade, judge, load_functions
+from oneshot.exercises import EXERCISES, gradebook
+from oneshot.exercises.grading import grade, grade_submission
+from oneshot.exercises.sandbox import Limits, sandbox_gaps
+from oneshot.exercises.submissions import SubmissionError, is_submission, submissions
+from oneshot.tools import cli
+
+_BASELINE_MB = 300                 # what a sandbox maps before the submission runs (Python, NumPy, autograd)
+
+
+def seconds(text):
+    """An argparse type: a finite number of seconds > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number of seconds > 0; got {text!r}")
+    return value
+
+
+def exercise_list(text):
+    """An argparse type: exercise numbers, e.g. "5,6" -> [5, 6]."""
+    try:
+        numbers = sorted({int(n) for n in text.split(",")})
+    except ValueError:
+        numbers = []
+    if not numbers or not set(numbers) <= set(EXERCISES):
+        raise argparse.ArgumentTypeError(f"expected comma-separated exercise numbers {min(EXERCISES)}-"
+                                         f"{max(EXERCISES)}, e.g. 5,6; got {text!r}")
+    return numbers
+
+
+def _limits(args):
+    return Limits(timeout=args.timeout, memory_mb=args.memory)
+
+
+def _warn():
+    for gap in sandbox_gaps():
+        print(f"warning: {gap}", file=sys.stderr)
 
 
 def _list():
     for n, e in EXERCISES.items():
-        print(f"{n:>2}  {e.title:<50}  def {e.name}({e.signature})")
+        print(f"{n:>2}  {e.title:<50}  {e.notebook:<26}  def {e.name}({e.signature})")
+    print("(the notebooks are in notebooks/exercises/; each exercise's stub is the cell tagged exercise-N)")
     return 0
 
 
-def _check(number, file):
-    if number not in EXERCISES:
-        return _bad(f"there is no exercise {number}; the exercises are {min(EXERCISES)}-{max(EXERCISES)}")
-    exercise = EXERCISES[number]
-    try:
-        functions = load_functions(file)
-    except SubmissionError as e:
-        return _bad(str(e))
-    if exercise.name not in functions:
-        return _bad(f"{file} defines no function {exercise.name}: exercise {number} asks for "
-                    f"def {exercise.name}({exercise.signature})")
-    result = judge(number, functions[exercise.name])
-    print(result.line)
-    return 0 if result.passed else 1
+def _check(args):
+    if args.number not in EXERCISES:
+        return _bad(f"there is no exercise {args.number}; the exercises are {min(EXERCISES)}-{max(EXERCISES)}")
+    exercise = EXERCISES[args.number]
+    if not is_submission(args.file):
+        return _bad(f"no such file or folder: {args.file}" if not os.path.lexists(args.file) else
+                    f"{args.file} is not a .py file, a notebook (.ipynb), or a folder of them")
+    _warn()
+    graded = grade_submission(args.file, [args.number], _limits(args), hidden=[_folder_of(args.file)])
+    if graded.load_error:
+        return _bad(graded.load_error)
+    verdict = graded.verdicts[args.number]
+    if verdict.startswith("missing"):
+        return _bad(f"{args.file} defines no function {exercise.name}: exercise {args.number} asks for "
+                    f"def {exercise.name}({exercise.signature})" + verdict[len("missing"):])
+    if verdict == "correct":
+        print(f"exercise {args.number} ({exercise.title}): correct")
+        return 0
+    print(f"exercise {args.number}: {verdict if verdict.startswith(('not yet', 'flagged')) else 'not yet: ' + verdict}")
+    return 1
 
 
-def _grade(folder, timeout, jobs):
+def _folder_of(file):
+    return os.path.dirname(os.path.abspath(file))
+
+
+def _grade(args):
     try:
-        grade(folder, timeout, jobs)
+        found = submissions(args.dir)
     except SubmissionError as e:
         return _bad(str(e))
+    available, jobs = cli.available_memory_bytes(), min(args.jobs or os.cpu_count() or 1, len(found))
+    need = jobs * (args.memory + _BASELINE_MB) << 20
+    if available is not None and need > available:
+        return _bad(f"{jobs} submissions at once (--jobs) x --memory {args.memory} MB (+{_BASELINE_MB} MB each for "
+                    f"Python) would take {cli.human_bytes(need)}, and {cli.human_bytes(available)} is available; "
+                    f"use fewer jobs or less memory")
+    _warn()
+    previous = signal.signal(signal.SIGTERM, _interrupt)       # a plain kill ends grading as Ctrl-C does
+    try:
+        graded = grade(args.dir, args.exercises, _limits(args), args.jobs)
+    except SubmissionError as e:
+        return _bad(str(e))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    numbers = args.exercises or sorted(EXERCISES)
+    for path, text in ((args.csv, gradebook.csv_text), (args.json, gradebook.json_text)):
+        if path:
+            print(f"wrote {gradebook.write(path, text(graded, numbers))}")
     return 0
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
 
 
 def _bad(message):
@@ -51,36 +129,43 @@ def _bad(message):
     return 2
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(prog="python -m oneshot.exercises", description=__doc__.splitlines()[0])
-    parser.add_argument("--grade", metavar="DIR", help="grade every submission in DIR (as the grade command)")
-    parser.add_argument("--timeout", type=float, default=60.0, help="seconds each exercise may take when grading")
-    parser.add_argument("--jobs", type=int, default=None, help="submissions graded at once (default: the cores)")
-    commands = parser.add_subparsers(dest="command", metavar="{list,check,grade}")
-    commands.add_parser("list", help="the exercises")
-    one = commands.add_parser("check", help="check one exercise's function, defined in a file")
+def parser():
+    limits = cli.Parser(add_help=False)
+    limits.add_argument("--timeout", type=seconds, default=Limits.timeout,
+                        help=f"seconds each exercise may take, wall clock and CPU (default {Limits.timeout:g})")
+    limits.add_argument("--memory", type=cli.at_least(50), default=Limits.memory_mb, metavar="MB",
+                        help=f"memory a submission may use, MB (default {Limits.memory_mb})")
+    main = cli.Parser(prog="python -m oneshot.exercises", description=__doc__.splitlines()[0])
+    main.add_argument("--grade", metavar="DIR", help=argparse.SUPPRESS)        # gone: see `grade`
+    commands = main.add_subparsers(dest="command", metavar="{list,check,grade}", parser_class=cli.Parser)
+    commands.add_parser("list", help="the exercises, their functions, and the notebooks that hold them")
+    one = commands.add_parser("check", parents=[limits], help="check one exercise's function, defined in a file")
     one.add_argument("number", type=int)
-    one.add_argument("--file", required=True, help="a .py file (or a folder of them) defining the function")
-    many = commands.add_parser("grade", help="grade every submission (.py file or folder) in DIR")
+    one.add_argument("--file", required=True, help="a .py file or notebook (or a folder of them) defining the function")
+    many = commands.add_parser("grade", parents=[limits], help="grade every submission in DIR",
+                               description="Grade every submission in DIR: its .py files, notebooks, and folders "
+                                           "of them, one per student.")
     many.add_argument("dir")
-    many.add_argument("--timeout", type=float, default=argparse.SUPPRESS)
-    many.add_argument("--jobs", type=int, default=argparse.SUPPRESS)
-    inner = commands.add_parser("_grade-child")                  # internal: one submission, in its own process
-    inner.add_argument("path")
-    inner.add_argument("numbers")
-    args = parser.parse_args(argv)
-    if args.command == "_grade-child":
-        child(args.path, [int(n) for n in args.numbers.split(",")])
-        return 0
-    if args.command == "grade" or (args.grade and args.command is None):
-        return _grade(args.dir if args.command == "grade" else args.grade, args.timeout, args.jobs)
+    many.add_argument("--exercises", type=exercise_list, help="the assigned exercises, e.g. 5,6 (default: all)")
+    many.add_argument("--jobs", type=cli.positive_int, default=None, help="submissions graded at once (default: the cores)")
+    many.add_argument("--csv", type=gradebook.output_file, metavar="FILE", help="also write a gradebook CSV")
+    many.add_argument("--json", type=gradebook.output_file, metavar="FILE", help="also write the grades as JSON")
+    return main
+
+
+def main(argv=None):
+    args = parser().parse_args(argv)
+    if args.grade:
+        return _bad(f"--grade is gone: use python -m oneshot.exercises grade {args.grade}")
+    if args.command == "grade":
+        return _grade(args)
     if args.command == "check":
-        return _check(args.number, args.file)
+        return _check(args)
     if args.command == "list":
         return _list()
-    parser.print_help()
+    parser().print_help()
     return 2
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli.run(main))

@@ -1,8 +1,11 @@
 """The exercises as a student sees them: for each, the function to write, its signature and its
-docstring (the stub in the notebooks is `Exercise.stub`), in the paper's order."""
+docstring (the stub in the notebooks is `Exercise.stub`), in the paper's order, and the notebook of
+`notebooks/exercises/` that holds it."""
+from dataclasses import replace
+
 from oneshot.exercises.checking import Exercise
 
-EXERCISES = {e.number: e for e in [
+_EXERCISES = [
     Exercise(1, "is_success", "Sec. IV, the success criterion", "IV",
              "end_effector, target, success_radius=0.05", """
 Did the arm reach the target? Paper Section IV: a trial succeeds when the end effector comes
@@ -106,4 +109,9 @@ h, c: (B, U) the hidden and cell states.
 
 Returns (h', c'), each (B, U).
 """),
-]}
+]
+
+NOTEBOOKS = {"01_world_and_expert.ipynb": (1, 2, 3), "02_network_and_maml.ipynb": (4, 5, 6, 7),
+             "03_baselines.ipynb": (8, 9, 10)}       # in notebooks/exercises/, each cell tagged exercise-N
+EXERCISES = {e.number: replace(e, notebook=next(nb for nb, ns in NOTEBOOKS.items() if e.number in ns))
+             for e in _EXERCISES}

@@ -7,6 +7,11 @@ An exercise's checker is a `Checker`: the package's function (called like the st
 mistakes, each a wrong version of the function with the words that explain it. A difference is
 "explained" by a mistake when the mistake's result equals the student's on the first case that shows
 the difference; when several do, the one that agrees with the student on the most cases wins.
+
+Running and judging are apart: `attempt` runs the student's function on one case and says what it
+did (an `Outcome`: its value, or the error it raised, in words); `judge` turns the outcomes into a
+verdict. `run` does both in this process (for a notebook's `check`); the grader runs `attempt` in a
+sandboxed process and `judge` in its own, on the values that came back (`oneshot.exercises.grading`).
 """
 import copy
 import warnings
@@ -28,6 +33,7 @@ class Exercise:
     section: str       # the paper's section, e.g. "III"
     signature: str     # e.g. "params, demo"
     doc: str           # the stub's docstring
+    notebook: str = "" # the notebook of notebooks/exercises/ that holds it, e.g. "02_network_and_maml.ipynb"
 
     @property
     def arguments(self):
@@ -50,6 +56,7 @@ class Result:
     passed: bool
     message: str
     title: str = ""
+    flagged: bool = False      # the function called the package's own answer (`oneshot.exercises.poison`)
 
     @property
     def line(self):
@@ -97,6 +104,7 @@ class Checker:
     cases: Callable
     out: Out
     mistakes: tuple = ()
+    package: tuple = ()        # the package's functions this exercise reimplements: off limits when graded
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -116,8 +124,12 @@ def _same(a, b):
 
 
 def error_words(error):
-    """An exception in one line: "ZeroDivisionError: division by zero"."""
-    text = str(error).strip().splitlines()
+    """An exception in one line: "ZeroDivisionError: division by zero" (its name alone if its message
+    cannot be had: a student's exception whose __str__ raises)."""
+    try:
+        text = str(error).strip().splitlines()
+    except Exception:
+        text = []
     text = text[0] if text else ""
     return f"{type(error).__name__}: {text[:200]}" if text else type(error).__name__
 
@@ -127,6 +139,38 @@ def _safe_compare(got, want, out):
         return compare(got, want, out)
     except Exception as e:
         return Difference(f"{out.what} is {describe(got)}, which the checker cannot read ({error_words(e)})")
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What the student's function did on one case: returned `value`, or raised `error` (in words,
+    "ZeroDivisionError: division by zero"; `not_written` for NotImplementedError); `changed` names
+    the first argument it changed in place; `used` names the package's own function it called."""
+    value: object = None
+    error: str = None
+    not_written: bool = False
+    changed: str = None
+    used: str = None
+
+    @property
+    def ok(self):
+        return self.error is None and not self.not_written and self.used is None
+
+
+def attempt(exercise, case, function):
+    """Run `function` on a copy of `case`'s arguments: an Outcome, whatever the function does (it may
+    raise anything, sys.exit() among it; only KeyboardInterrupt passes, as Ctrl-C should)."""
+    args = copy.deepcopy(case.args)
+    try:
+        value = case.run(function, args)
+    except NotImplementedError:
+        return Outcome(not_written=True)
+    except KeyboardInterrupt:
+        raise
+    except BaseException as e:          # noqa: B036: SystemExit too; PackageUsed carries `package_function`
+        return Outcome(error=error_words(e), used=getattr(e, "package_function", None))
+    changed = [a for a, before, after in zip(exercise.arguments, case.args, args) if not _same(before, after)]
+    return Outcome(value=value, changed=changed[0] if changed else None)
 
 
 def _try(case, fn):
@@ -143,7 +187,7 @@ def _explain(mistake, case):
         return mistake.explain
 
 
-def _diagnose(checker, cases, index, got, want, difference, function):
+def _diagnose(checker, cases, index, got, want, difference, outcome_of):
     """The known mistake that explains the student's result on cases[index], or None."""
     case = cases[index]
     out = case.out or checker.out
@@ -161,46 +205,69 @@ def _diagnose(checker, cases, index, got, want, difference, function):
             candidates.append(mistake)
     if len(candidates) <= 1:
         return candidates[0] if candidates else None
-    student = [_try(c, function) for c in cases]       # several fit: the one that fits the most cases
+    student = [(o.ok, o.value) for o in map(outcome_of, range(len(cases)))]   # several fit: the one
 
     def agreement(mistake):
         score = 0
         for c, (ok, yours) in zip(cases, student):
             theirs_ok, theirs = _try(c, mistake.fn)
             score += ok and theirs_ok and _safe_compare(yours, theirs, c.out or checker.out) is None
-        return score
+        return score                                   # that fits the most cases wins
     return max(candidates, key=agreement)
 
 
 def run(exercise, checker, function):
-    """Check `function` against the package on every case; a Result with the first difference in words."""
-    def verdict(passed, message):
-        return Result(exercise.number, passed, message, exercise.title)
-    name = exercise.name
+    """Check `function` against the package on every case, in this process: `judge` of its `attempt`s."""
     if not callable(function):
-        return verdict(False, f"expected a function {name}({exercise.signature}); got {describe(function)}")
+        return Result(exercise.number, False, f"expected a function {exercise.name}({exercise.signature}); "
+                                              f"got {describe(function)}", exercise.title)
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore")
+        cases, outcomes = checker.cases(), {}
+
+        def outcome_of(index):                         # run the function only on the cases judge asks for
+            if index not in outcomes:
+                outcomes[index] = attempt(exercise, cases[index], function)
+            return outcomes[index]
+        return judge(exercise, checker, outcome_of, cases)
+
+
+def expectations(checker):
+    """(cases, the package's result on each): what `judge` compares with, computed once per grading."""
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")
         cases = checker.cases()
+        return cases, [case.run(checker.expected) for case in cases]
+
+
+def judge(exercise, checker, outcome_of, cases=None, wants=None):
+    """The verdict on the outcomes `outcome_of(index)` of the student's function on `cases` (default:
+    the checker's): a Result with the first difference in words, naming the mistake that explains it."""
+    def verdict(passed, message, flagged=False):
+        return Result(exercise.number, passed, message, exercise.title, flagged)
+    name = exercise.name
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore")
+        cases = checker.cases() if cases is None else cases
         for index, case in enumerate(cases):
             out = case.out or checker.out
-            want = case.run(checker.expected)
-            args = copy.deepcopy(case.args)
-            try:
-                got = case.run(function, args)
-            except NotImplementedError:
+            want = case.run(checker.expected) if wants is None else wants[index]
+            outcome = outcome_of(index)
+            if outcome.used:
+                return verdict(False, f"your {name} calls {outcome.used}, the package's own (on {case.label}): "
+                                      f"write your own", flagged=True)
+            if outcome.not_written:
                 return verdict(False, f"{name} is not written yet (it raises NotImplementedError)")
-            except Exception as e:
+            if outcome.error is not None:
                 hint = f"; {case.hint}" if case.hint else ""
-                return verdict(False, f"your {name} raised {error_words(e)} on {case.label}{hint}")
-            changed = [a for a, before, after in zip(exercise.arguments, case.args, args) if not _same(before, after)]
-            if changed:
-                return verdict(False, f"your {name} changed its argument `{changed[0]}` in place (on {case.label}): "
-                                      f"leave the inputs as they are and return new values")
-            difference = _safe_compare(got, want, out)
+                return verdict(False, f"your {name} raised {outcome.error} on {case.label}{hint}")
+            if outcome.changed:
+                return verdict(False, f"your {name} changed its argument `{outcome.changed}` in place (on "
+                                      f"{case.label}): leave the inputs as they are and return new values")
+            difference = _safe_compare(outcome.value, want, out)
             if difference is None:
                 continue
-            mistake = _diagnose(checker, cases, index, got, want, difference, function)
+            mistake = _diagnose(checker, cases, index, outcome.value, want, difference, outcome_of)
             if mistake is not None:
                 return verdict(False, f"{_explain(mistake, case)} (on {case.label}: {difference.message})")
             return verdict(False, f"on {case.label}, {difference.message}")

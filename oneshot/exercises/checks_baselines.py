@@ -39,7 +39,7 @@ def _wrong_context(frame=-1, axis=-1, context_first=False, own_frames=False, new
 
 
 CONTEXT = Checker(
-    expected=_package_contextual_input, cases=_context_cases,
+    expected=_package_contextual_input, cases=_context_cases, package=(contextual.contextual_images,),
     out=Out("array", "your input", ("frame", "row", "column", "channel")),
     mistakes=(
         Mistake("you stacked the demo's FIRST image: the context is its FINAL image, demo_images[..., -1, :, :, :], "
@@ -87,7 +87,7 @@ def _wrong_wilson(wald=False, short_half=False, centre_p=False, fixed_z=None):
 
 
 WILSON = Checker(
-    expected=scoring.wilson_interval, cases=_wilson_cases,
+    expected=scoring.wilson_interval, cases=_wilson_cases, package=(scoring.wilson_interval,),
     out=Out("tuple", parts=(Out("number", "your lower bound"), Out("number", "your upper bound"))),
     mistakes=(
         Mistake("yours is the Wald interval p +- z sqrt(p (1 - p) / n): Wilson's centre is pulled towards 1/2 "
@@ -125,6 +125,7 @@ def _wrong_lstm(order="ifgo", gate=lambda x: 1 / (1 + np.exp(-x)), forget=True, 
 _state = lambda what: Out("array", what, ("batch", "unit"))
 LSTM = Checker(
     expected=lstm.lstm_step, cases=_lstm_cases, out=Out("tuple", parts=(_state("your h'"), _state("your c'"))),
+    package=(lstm.lstm_step,),
     mistakes=(
         Mistake("your gate blocks are in the wrong order: z splits into i, f, g, o, in that order (you swapped "
                 "i and f)", _wrong_lstm(order="figo")),

@@ -67,6 +67,7 @@ def _wrong_inner(sign=-1, step=lambda alpha: alpha, adapts=_prefixed, cut=False,
 
 INNER = Checker(
     expected=_package_inner_update, cases=_inner_cases, out=Out("dict", "your adapted params"),
+    package=(inner.inner_update,),
     mistakes=(
         Mistake("you stepped UP the gradient (theta + alpha * grad): eq. (1) subtracts it, theta - alpha * grad",
                 _wrong_inner(sign=+1)),
@@ -137,7 +138,7 @@ def _wrong_meta(swap=False, same=False, adapted=True, factor=lambda a, h: 1 - a 
 
 
 META = Checker(
-    expected=_package_meta_gradients, cases=_meta_cases,
+    expected=_package_meta_gradients, cases=_meta_cases, package=(inner.meta_gradient,),
     out=Out("tuple", parts=(Out("number", "your second-order meta-gradient"),
                             Out("number", "your first-order meta-gradient"))),
     mistakes=(

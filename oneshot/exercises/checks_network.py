@@ -5,7 +5,7 @@ import numpy as np
 from autograd import grad
 
 from oneshot.maml import imitation
-from oneshot.policy import layers
+from oneshot.policy import layers, network
 from oneshot.exercises.checking import Case, Checker, Mistake
 from oneshot.exercises.compare import Out
 from oneshot.policy.network import NetworkConfig, forward, init_params
@@ -53,7 +53,7 @@ def _wrong_conv(pad=lambda p: (p, p), use_stride=True, order=(0, 1, 2), flip=Fal
 
 
 CONV = Checker(
-    expected=layers.conv2d, cases=_conv_cases,
+    expected=layers.conv2d, cases=_conv_cases, package=(layers.conv2d, network.conv2d_reference),
     out=Out("array", "your output", ("image", "row", "column", "channel")),
     mistakes=(
         Mistake("you did not pad: 'same' convolution pads k // 2 = {p} zeros on every side, so {H}x{W} images "
@@ -113,6 +113,7 @@ def _wrong_loss(combine):
 
 LOSS = Checker(
     expected=imitation.imitation_loss, cases=_loss_cases, out=Out("number", "your loss"),
+    package=(imitation.imitation_loss,),
     mistakes=(
         Mistake("your loss is 1/T of the expected value: eq. (2) sums over frames, it does not average "
                 "(T = {T})", _wrong_loss(lambda r: anp.sum(r ** 2) / len(r))),

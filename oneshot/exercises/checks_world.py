@@ -55,7 +55,7 @@ def _judge(window, squared=False, mean=False, strict=False, fixed=None):
 
 _fifth = lambda e: e[-max(1, len(e) // 5):]
 SUCCESS = Checker(
-    expected=reach.is_success, cases=_success_cases, out=Out("bool", "your answer"),
+    expected=reach.is_success, cases=_success_cases, out=Out("bool", "your answer"), package=(reach.is_success,),
     mistakes=(
         Mistake("you judge the whole episode: success is judged on its final fifth only (the last {w} of "
                 "{T} steps), so passing the target early and leaving does not count", _judge(lambda e: e)),
@@ -116,7 +116,7 @@ def _wrong_kinematics(link1=lambda q1, q2: q1, link2=lambda q1, q2: q1 + q2, swa
 
 
 KINEMATICS = Checker(
-    expected=_package_kinematics, cases=_kinematics_cases,
+    expected=_package_kinematics, cases=_kinematics_cases, package=(arm.forward_kinematics, arm.end_effector_jacobian),
     out=Out("tuple", parts=(Out("array", "your position p", ("coordinate",), (("x", "y"),)),
                             Out("array", "your Jacobian J", ("row", "column"), (("x", "y"), ("q1", "q2"))))),
     mistakes=(
@@ -198,7 +198,7 @@ def _wrong_step(no_BVB=False, mu_on_quu=False, plain_qux=False, regularised_valu
 
 _vector = lambda what, axis: Out("array", what, (axis,))
 BACKWARD_STEP = Checker(
-    expected=_package_step, cases=_step_cases,
+    expected=_package_step, cases=_step_cases, package=(ilqg.backward_pass,),
     out=Out("tuple", parts=(_vector("your k", "control"), Out("array", "your K", ("control", "state")),
                             _vector("your Vx", "state"), Out("array", "your Vxx", ("state", "state")))),
     mistakes=(

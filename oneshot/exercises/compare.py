@@ -29,6 +29,18 @@ class Difference:
     part: object = None     # the tuple index or dict key where the first difference is; None: the whole
 
 
+class Opaque:
+    """A value that came back from a sandboxed submission as words only (`oneshot.exercises.wire`):
+    an object of a type the wire does not carry, e.g. "a generator"."""
+    __slots__ = ("words",)
+
+    def __init__(self, words):
+        self.words = words
+
+    def __repr__(self):
+        return f"<{self.words}>"
+
+
 def fmt(x):
     return f"{float(x):.6g}"
 
@@ -37,6 +49,8 @@ def describe(x):
     """A value in a few words: "None", "an array of shape (5,)", "a tuple of 3 items"."""
     if x is None:
         return "None"
+    if isinstance(x, Opaque):
+        return x.words
     if isinstance(x, (bool, np.bool_)):
         return str(bool(x))
     if isinstance(x, np.ndarray):

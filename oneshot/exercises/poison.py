@@ -1,0 +1,108 @@
+"""Tripwires: in the sandbox, the package's own answers refuse to work for a submission.
+
+A submission that wraps `oneshot.exercises.reference(5)`, or the package's `imitation_loss` or
+`inner_update`, would otherwise be graded correct. Before a submission loads, `arm` swaps the code of
+every function that computes an answer (`Checker.package`: each exercise's package functions, every
+function of their modules, and the reference solutions) for a tripwire. The tripwire looks up the
+stack: if a submission's frame called it (directly, or through any other package function), it raises
+`PackageUsed`, which the sandbox reports as "your imitation_loss calls oneshot.maml.imitation.
+imitation_loss, the package's own"; otherwise (the checker's own code, or autograd's backward pass)
+it runs the original. The functions of `ALLOWED` modules are the exception exercise 5 needs: its loss
+calls `oneshot.policy.network.forward`, whose convolution is exercise 4's answer.
+
+Swapping the code object, not the module attribute, trips every alias: `from ... import`, `reference(n)`,
+`SOLUTIONS`, `Checker.expected`. This stops a submission from USING the package's answers; it cannot stop
+one that deliberately digs the originals out of this process's memory (any code in a process can), and
+the grader trusts nothing this process says: it judges the values that come back (`grading`).
+"""
+import gc
+import os
+import sys
+import sysconfig
+import types
+
+ALLOWED = ("oneshot.policy.network",)       # modules whose functions a submission may call: entry points
+tripped = []                                # names of the answers a submission called, newest last
+_state = {"originals": {}, "names": {}, "entries": set(), "boundary": None, "trusted": (), "seen": {}}
+
+
+class PackageUsed(BaseException):
+    """A submission called one of the package's answers. A BaseException, so that `except Exception`
+    in the submission does not hide it; `package_function` names the function."""
+
+    def __init__(self, name):
+        super().__init__(f"{name} is the package's own answer: write your own")
+        self.package_function = name
+
+
+def submission(function):
+    """`function` (the student's), wrapped in a frame the tripwires count as the submission's: so that
+    `wilson_interval = reference(9)`, whose calls come straight from the checker, trips too."""
+    def submitted(*args, **kwargs):
+        return function(*args, **kwargs)
+    return submitted
+
+
+_SUBMITTED = submission(None).__code__
+
+
+def _trusted_roots():
+    """Folders whose code is not a submission's: the standard library, site-packages, the oneshot package."""
+    import oneshot
+    roots = {sysconfig.get_paths()[k] for k in ("stdlib", "platstdlib", "purelib", "platlib")}
+    roots |= {os.path.dirname(oneshot.__file__)} | {p for p in sys.path if "site-packages" in p}
+    return tuple(os.path.join(os.path.realpath(r), "") for r in roots if r)
+
+
+def _is_trusted(filename):
+    seen = _state["seen"]
+    if filename not in seen:
+        seen[filename] = filename[:1] == os.sep and os.path.realpath(filename).startswith(_state["trusted"])
+    return seen[filename]
+
+
+def trip(key, args, kwargs):
+    """What a tripwire does (called by the swapped code): run the original, unless a submission's frame
+    (or `submission`'s wrapper) called it with no `ALLOWED` function between: then raise PackageUsed.
+    Reaching the checker's boundary without one means the checker called it (autograd's backward pass)."""
+    frame = sys._getframe(2)                    # 0: here, 1: the tripwire, 2: its caller
+    while frame is not None:
+        code = frame.f_code
+        if code in _state["entries"] or code is _state["boundary"]:
+            return _state["originals"][key](*args, **kwargs)
+        if code is _SUBMITTED or not _is_trusted(code.co_filename):
+            break                               # a submission's frame (a file of its own, or exec'd text)
+        frame = frame.f_back
+    tripped.append(_state["names"][key])
+    raise PackageUsed(_state["names"][key])     # a submission's frame, or a thread it started
+
+
+def _modules_of(functions):
+    return {getattr(sys.modules.get(f.__module__), "__file__", None) for f in functions
+            if f.__module__ not in ALLOWED} - {None}
+
+
+def arm(functions, boundary):
+    """Swap the code of `functions`, and of every closure-free function defined in their modules'
+    files (not ALLOWED modules'), for tripwires. `boundary`: the code object of the sandbox's function
+    that calls the student's (its frame marks "called by the checker, not by the submission")."""
+    files = {os.path.realpath(f) for f in _modules_of(functions)}
+    explicit = {id(f) for f in functions}
+    targets = [f for f in gc.get_objects() if type(f) is types.FunctionType and f.__closure__ is None and
+               (id(f) in explicit or os.path.realpath(f.__code__.co_filename) in files)]
+    _state.update(boundary=boundary, trusted=_trusted_roots())
+    for module in ALLOWED:
+        _state["entries"] |= {f.__code__ for f in vars(sys.modules[module]).values() if type(f) is
+                              types.FunctionType and f.__module__ == module and id(f) not in explicit}
+    for key, f in enumerate(targets):
+        original = types.FunctionType(f.__code__, f.__globals__, f.__name__, f.__defaults__, f.__closure__)
+        original.__kwdefaults__ = f.__kwdefaults__
+        _state["originals"][key] = original
+        _state["names"][key] = f"{f.__module__}.{f.__qualname__}"
+        source = (f"def tripwire(*args, **kwargs):\n"
+                  f"    return __import__('sys').modules[{__name__!r}].trip({key}, args, kwargs)\n")
+        namespace = {}
+        exec(compile(source, f.__code__.co_filename, "exec"), namespace)
+        f.__code__ = namespace["tripwire"].__code__.replace(co_name=f.__code__.co_name,
+                                                            co_qualname=f.__code__.co_qualname)
+    return len(targets)

@@ -1,0 +1,143 @@
+"""Grading as teachers do it (issue 31): notebooks handed in, executed or never executed, graded
+directly (no nbconvert) into a gradebook CSV and JSON; an assignment of a few exercises graded alone;
+`check --file` on a notebook; `list` naming each exercise's notebook. The notebooks are the real stubs
+of notebooks/exercises/, filled in as students would."""
+import copy
+import csv
+import inspect
+import json
+import os
+import stat
+from pathlib import Path
+
+import pytest
+
+from oneshot.exercises import EXERCISES, solutions
+from oneshot.exercises import __main__ as cli_main
+
+NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks" / "exercises"
+WRONG_8 = """def contextual_input(images, demo_images):
+    return np.concatenate([images, np.broadcast_to(demo_images[..., :1, :, :, :], images.shape)], axis=-1)
+"""
+
+
+def notebook(name, answers=None, executed=False, extra=()):
+    """The stub notebook `name` with the exercise cells of `answers` {n: code} filled in, `extra` code
+    cells appended, and, if `executed`, execution counts and outputs as Jupyter leaves them."""
+    nb = copy.deepcopy(json.loads((NOTEBOOKS / name).read_text()))
+    for cell in nb["cells"]:
+        tags = [t for t in cell["metadata"].get("tags", []) if t.startswith("exercise-")]
+        if tags and int(tags[0].removeprefix("exercise-")) in (answers or {}):
+            cell["source"] = (answers[int(tags[0].removeprefix("exercise-"))]).splitlines(keepends=True)
+    nb["cells"] += [{"cell_type": "code", "id": f"x{i}", "metadata": {}, "source": source, "outputs": [],
+                     "execution_count": None} for i, source in enumerate(extra)]
+    for count, cell in enumerate(c for c in nb["cells"] if c["cell_type"] == "code"):
+        if executed:
+            cell["execution_count"] = count + 1
+            cell["outputs"] = [{"output_type": "stream", "name": "stdout", "text": ["exercise 9: correct\n"]}]
+    return json.dumps(nb)
+
+
+def reference_source(number):
+    return inspect.getsource(solutions.SOLUTIONS[number])
+
+
+@pytest.fixture(scope="module")
+def handed_in(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("handed_in")
+    everything = {n: reference_source(n) for n in (8, 9, 10)}
+    shell = ["!pip install numpy\n%matplotlib inline\nimport numpy as np", "%%bash\necho not python",
+             "%%time\nkept = True"]
+    (folder / "alice.ipynb").write_text(notebook("03_baselines.ipynb", everything, extra=shell))
+    (folder / "bob.ipynb").write_text(notebook("03_baselines.ipynb", {8: WRONG_8, 9: reference_source(9),
+                                                                       10: "def lstm_step(w_h, xw, h, c:\n"},
+                                               executed=True, extra=["scratch = undefined_name"]))
+    (folder / "carol.ipynb").write_text(notebook("03_baselines.ipynb"))       # the stub, never touched
+    (folder / "dave").mkdir()
+    (folder / "dave" / "work.ipynb").write_text(notebook("03_baselines.ipynb", {9: reference_source(9)}))
+    return folder
+
+
+def test_a_folder_of_executed_and_unexecuted_notebooks_is_graded_into_a_gradebook(handed_in, tmp_path, capsys):
+    gradebook, grades = tmp_path / "grades.csv", tmp_path / "grades.json"
+    assert cli_main.main(["grade", str(handed_in), "--exercises", "8,9,10", "--timeout", "5",
+                          "--csv", str(gradebook), "--json", str(grades)]) == 0
+    out = capsys.readouterr().out
+    assert "alice.ipynb  total  3/3 correct, 3 attempted" in out
+    assert f"wrote {gradebook}" in out and f"wrote {grades}" in out
+    rows = {row["student"]: row for row in csv.DictReader(gradebook.open())}
+    assert list(rows["alice"]) == ["student", "submission", "exercise_8", "exercise_9", "exercise_10", "total",
+                                   "max_score", "flagged", "notes"]
+    assert [rows[s]["total"] for s in ("alice", "bob", "carol", "dave")] == ["3", "1", "0", "1"]
+    assert rows["bob"]["exercise_9"] == "1" and rows["bob"]["exercise_8"] == "0"
+    assert rows["bob"]["notes"] == "8 not yet; 10 missing" and rows["dave"]["submission"] == "dave/"
+    assert rows["carol"]["notes"] == "8 not yet; 9 not yet; 10 not yet" and rows["alice"]["max_score"] == "3"
+    students = {s["student"]: s for s in json.loads(grades.read_text())["students"]}
+    assert students["bob"]["verdicts"]["8"].startswith("not yet: you stacked the demo's FIRST image")
+    assert students["bob"]["verdicts"]["10"].startswith("missing (cell ") and "SyntaxError" in students["bob"]["verdicts"]["10"]
+    assert students["carol"]["verdicts"]["9"] == "not yet: wilson_interval is not written yet (it raises NotImplementedError)"
+
+
+def test_an_assignment_grades_only_its_exercises(tmp_path, capsys):
+    header = "import autograd.numpy as anp\nimport numpy as np\nfrom autograd import grad\n" \
+             "from oneshot.policy.network import forward\n\n"
+    (tmp_path / "erin.py").write_text(header + reference_source(5) + "\n" + reference_source(6))
+    (tmp_path / "frank.py").write_text(header + reference_source(5).replace("anp.sum(residual ** 2)",
+                                                                           "anp.mean(residual ** 2)"))
+    assert cli_main.main(["grade", str(tmp_path), "--exercises", "6,5", "--json", str(tmp_path / "g.json")]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if not line.startswith("wrote")]
+    assert [line.split()[1] for line in lines] == ["5", "6", "total", "5", "6", "total"]
+    assert lines[2].endswith("total  2/2 correct, 2 attempted") and lines[5].endswith("total  0/2 correct, 1 attempted")
+    assert lines[4].endswith("6  missing")
+    grades = json.loads((tmp_path / "g.json").read_text())
+    assert grades["exercises"] == [5, 6] and [s["total"] for s in grades["students"]] == [2, 0]
+    assert cli_main.parser().parse_args(["grade", "x"]).timeout == 10.0        # an endless loop costs 10 s
+
+
+def test_check_file_on_a_notebook(handed_in, capsys):
+    assert cli_main.main(["check", "9", "--file", str(handed_in / "alice.ipynb")]) == 0
+    assert capsys.readouterr().out == "exercise 9 (Sec. IV, the Wilson interval): correct\n"
+    assert cli_main.main(["check", "8", "--file", str(handed_in / "bob.ipynb")]) == 1
+    assert capsys.readouterr().out.startswith("exercise 8: not yet: you stacked the demo's FIRST image")
+    assert cli_main.main(["check", "10", "--file", str(handed_in / "bob.ipynb")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "defines no function lstm_step" in err and "SyntaxError" in err, err
+
+
+def test_a_notebook_is_graded_as_its_python():
+    from oneshot.exercises.submissions import python_of
+    assert python_of("!pip install x\nimport os\n%matplotlib inline\nif True:\n    !ls\n") == \
+        "pass\nimport os\npass\nif True:\n    pass\n"
+    assert python_of("%%bash\necho hi\n") is None and python_of("\n%%html\n<b>") is None
+    assert python_of("%%time\nx = 1\n") == "x = 1\n"
+
+
+def test_list_names_the_notebook_of_each_exercise(capsys):
+    assert cli_main.main(["list"]) == 0
+    out = capsys.readouterr().out
+    for number, exercise in EXERCISES.items():
+        line = next(line for line in out.splitlines() if line.split()[:1] == [str(number)])
+        assert exercise.notebook in line and f"def {exercise.name}(" in line
+    for path in NOTEBOOKS.glob("*.ipynb"):                  # the catalogue agrees with the notebooks' tags
+        tags = {int(t.removeprefix("exercise-")) for c in json.loads(path.read_text())["cells"]
+                for t in c["metadata"].get("tags", []) if t.startswith("exercise-")}
+        assert tags == {n for n, e in EXERCISES.items() if e.notebook == path.name}
+
+
+def test_the_gradebook_is_written_through_links_and_never_to_a_device(tmp_path):
+    from oneshot.exercises import gradebook
+    from oneshot.exercises.grading import Graded
+    graded = [Graded("=HYPERLINK(1).py", [9], {9: "correct"}), Graded("bo,b.py", [9], {9: "timed out after 2 s"})]
+    target = tmp_path / "real.csv"
+    target.write_text("old")
+    (tmp_path / "link.csv").symlink_to(target)
+    gradebook.write(str(tmp_path / "link.csv"), gradebook.csv_text(graded, [9]))
+    assert (tmp_path / "link.csv").is_symlink()                 # the link is kept; its target is updated
+    rows = list(csv.DictReader(target.open()))
+    assert rows[0]["student"] == "'=HYPERLINK(1)" and rows[0]["exercise_9"] == "1"       # not a formula
+    assert rows[1]["submission"] == "bo,b.py" and rows[1]["notes"] == "9 timed out"
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []          # no temporary left
+    for bad in ("/dev/null", str(tmp_path)):
+        with pytest.raises(SystemExit):
+            cli_main.main(["grade", str(tmp_path), "--csv", bad])
+    assert stat.S_ISCHR(os.stat(os.devnull).st_mode)                 # still the device
