@@ -69,7 +69,7 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, **ove
 
     The part is computed `iterations` times as it is (median wall time) and, alternately with those,
     `iterations` times under Python's cProfile, which gives the time spent inside each of the network's
-    primitives (`oneshot.policy.layers`, `oneshot.maml.batched`; medians): the matrix products, im2col/col2im and the
+    primitives (`oneshot.policy.layers`, `oneshot.maml.inner`; medians): the matrix products, im2col/col2im and the
     rest of the layer primitives (bias, ReLU, masks, concatenation, eq. (1)). The remainder of the wall
     time is autograd's own Python bookkeeping, its sums of gradients and NumPy's small operations (the
     loss, reshapes). Returns milliseconds per part.

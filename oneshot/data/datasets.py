@@ -36,15 +36,15 @@ FORMAT_VERSION = 1
 
 atomic_write = files.atomic_write      # where it was first defined; write files with files.atomic_write
 
-# What each of the 6 numbers of a state is (`world.observation_state`; the angles and velocities are
+# What each of the 6 numbers of a state is (`reach.observation_state`; the angles and velocities are
 # arm.py's x = (q1, q2, qd1, qd2)): radians, radians per second, metres. Saved in the metadata as
 # "state_layout"; files written before it was recorded lack it, and have this layout.
 STATE_LAYOUT = ("shoulder angle", "elbow angle", "shoulder velocity", "elbow velocity",
                 "end effector x", "end effector y")
 
 # What the package reads from a dataset's metadata, beyond what `world_config` needs to rebuild the
-# world: imitation.py the split, train.py the torque bound (the arrays' shapes are checked against
-# the horizon, image size and number of objects).
+# world: imitation.py the split, training/run_folder.py the torque bound (the arrays' shapes are checked
+# against the horizon, image size and number of objects).
 REQUIRED_METADATA = (("split",), ("world", "horizon"), ("world", "image_size"), ("world", "n_objects"),
                      ("world", "arm", "max_torque"), ("world", "palette"))
 

@@ -1,6 +1,6 @@
 """Archives of named arrays (.npz, what np.savez writes and np.load reads): written so that the same
-arrays are the same bytes, read without trusting the file. Datasets (data.py) and checkpoints
-(checkpoint.py) are such files.
+arrays are the same bytes, read without trusting the file. Datasets (data/datasets.py) and checkpoints
+(training/checkpoint.py) are such files.
 
     npz.write(f, {"x": x, "y": y})                 # f: a binary file; one .npy member per array
     arrays = npz.read("a.npz")                     # {"x": x, "y": y}

@@ -10,8 +10,7 @@ colour) with one seed, then scored on the same held-out trials:
     python -m oneshot.experiments fig2 --profile paper --local-cluster 4   # Dask, pip install ".[cluster]"
     python -m oneshot.experiments fig2 --profile paper --scheduler tcp://host:8786
 
-It writes `oneshot/results/fig2_<profile>/` (`RESULTS`, shipped with the package, so that notebook 04 and
-`load_results` find it wherever the package is installed): runs.csv (one row per finished run), summary.json (per method
+It writes `results/fig2_<profile>/` where it runs (or `--out`): runs.csv (one row per finished run), summary.json (per method
 and size: the mean over seeds, a 95% Wilson interval on the pooled trials, the range over seeds) and
 fig2.png (pip install ".[plots]"), only once every run of the profile has finished; `--seeds 0` does
 the runs of seed 0 alone and writes summary_seeds0.json and fig2_seeds0.png. Each run works in `runs/fig2/<run id>/` (profiles share the folder:

@@ -127,8 +127,8 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
     and runs it in a fresh scene of that colour (`trial_seed`).
 
     condition(demo) -> policy: what one demonstration (network units) makes of the policy, e.g.
-    `lambda demo: adapt(params, demo, alpha, steps, only)` for MIL (eq. 1), `lambda demo: params` for
-    the unadapted policy, a baseline's conditioned policy (`methods.conditioner`).
+    `lambda demo: adapt(params, demo, alpha, steps, only=only)` for MIL (eq. 1), `lambda demo: params` for
+    the unadapted policy, a baseline's conditioned policy (`methods.of(cfg).conditioner(params)`).
     Returns {"successes", "trials", "rate", "per_colour": {colour: rate}, "failures": {"near_miss": n,
     "wrong_object": m}}: a failed trial is a near miss when the end effector's closest object over the
     final fifth was the target, else it went to a distractor.

@@ -45,7 +45,7 @@ class NetworkConfig:
                     spatial soft-argmax (`spatial_soft_argmax`), 2 per channel, instead of being
                     flattened (an option of MIL's released code; the default profile uses it).
     image_channels: channels of the input image: 3 (RGB), or 6 for the contextual baseline, which
-                    stacks the demonstration's final image on the current one (`oneshot.methods.baselines`).
+                    stacks the demonstration's final image on the current one (`oneshot.methods.contextual`).
     """
 
     image_size: int = 32

@@ -171,7 +171,7 @@ def run(main, argv=None, failures=()):
 
         2    ValueError (datasets.DatasetError, files.RefusedPath among them), FileNotFoundError, FileExistsError:
              bad input; the message says what and how to fix it
-        1    the `failures` types (e.g. train.TrainingDiverged, shards.ShardError) and other OSError;
+        1    the `failures` types (e.g. loop.TrainingDiverged, shards.ShardError) and other OSError;
              lines after the first of their message (a worker's traceback) are printed after it
         130  KeyboardInterrupt ("interrupted", or its message: e.g. where training saved its checkpoint)
     Anything else is a bug, and keeps its traceback.

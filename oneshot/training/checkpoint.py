@@ -7,7 +7,7 @@ written atomically.
     params = checkpoint.policy_params(ckpt)          # what the policy acts with
 
 Saving then loading gives back the same arrays and random state, so a run resumed from a checkpoint
-continues exactly as the uninterrupted run would have (`train.train(..., resume=True)`).
+continues exactly as the uninterrupted run would have (`run_folder.train(..., resume=True)`).
 
 `load` trusts nothing in the file: a damaged or hand-edited checkpoint raises `CheckpointError`, which
 names the file and what is wrong with it, never a KeyError three calls deeper or a policy missing a

@@ -34,7 +34,7 @@ class TrainConfig:
     ema: float = 0.0                         # decay of a moving average of the parameters (Polyak
                                              # averaging; 0: off), which evaluation then uses
     learn_alpha: bool = False                # Meta-SGD: meta-learn one step size per adapted element,
-                                             # starting at `alpha` (stored as maml.STEP_PREFIX params)
+                                             # starting at `alpha` (stored as inner.STEP_PREFIX params)
     seed: int = 0                            # parameters and meta-batch sampling
     log_every: int = 10
     eval_every: int = 500                    # held-out one-shot success during training
