@@ -1,26 +1,45 @@
 """oneshot: one-shot visual imitation learning via meta-learning (Finn et al., 2017), in NumPy."""
+import importlib.abc
+import importlib.util
+import sys
 
 __version__ = "0.1.0"
 
 GYM_ENV_ID = "oneshot/Reach-v0"       # the world of paper Section IV as a Gymnasium environment
 
 
-def _register_with_gymnasium():
-    """Register `oneshot/Reach-v0` with Gymnasium, if it is installed (the extra: pip install ".[gym]").
-
-    Done on `import oneshot`, as Gymnasium's conventions ask, so that `gymnasium.make("oneshot/Reach-v0")`
-    works after `import oneshot`, and `gymnasium.make("oneshot:oneshot/Reach-v0")` (which imports
-    `oneshot` first) without it. Entry points are strings: nothing of the environment is imported until
-    `make` builds one. max_episode_steps is the world's horizon, T = 20 (`WorldConfig.horizon`; the env
-    also truncates itself there, so the two agree).
-    """
-    try:
-        import gymnasium
-    except ImportError:                 # no Gymnasium: the rest of the package does not need it
-        return
+def _register(gymnasium):
+    """Register `oneshot/Reach-v0` with Gymnasium. Entry points are strings: nothing of the environment
+    is imported until `make` builds one. max_episode_steps is the world's horizon, T = 20
+    (`WorldConfig.horizon`; the env also truncates itself there, so the two agree)."""
     if GYM_ENV_ID not in gymnasium.registry:
         gymnasium.register(id=GYM_ENV_ID, entry_point="oneshot.world.gym:ReachEnv",
                            vector_entry_point="oneshot.world.gym:vector_env", max_episode_steps=20)
 
 
-_register_with_gymnasium()
+class _RegisterWhenGymnasiumLoads(importlib.abc.MetaPathFinder):
+    """Registers the environment the moment Gymnasium is imported, after `import oneshot` (the optional
+    extra: pip install ".[gym]"). So `gymnasium.make("oneshot/Reach-v0")` works after `import oneshot`,
+    as Gymnasium's conventions ask, and `gymnasium.make("oneshot:oneshot/Reach-v0")` (which imports
+    `oneshot` itself) without it; yet `import oneshot` imports nothing but the standard library (the
+    exercise grader relies on that: a student's numpy.py must not be imported before it guards)."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name != "gymnasium":
+            return None
+        sys.meta_path.remove(self)                 # once: the real finders locate Gymnasium
+        spec = importlib.util.find_spec(name)
+        if spec is not None and spec.loader is not None and hasattr(spec.loader, "exec_module"):
+            run = spec.loader.exec_module
+
+            def exec_module(module):
+                run(module)
+                _register(module)
+            spec.loader.exec_module = exec_module
+        return spec
+
+
+if sys.modules.get("gymnasium") is not None:             # None: marked missing
+    _register(sys.modules["gymnasium"])
+elif "gymnasium" not in sys.modules and not any(isinstance(f, _RegisterWhenGymnasiumLoads) for f in sys.meta_path):
+    sys.meta_path.insert(0, _RegisterWhenGymnasiumLoads())

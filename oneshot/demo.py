@@ -1,13 +1,14 @@
 """The demo: `python -m oneshot.demo [--out DIR] [--checkpoint PATH]`.
 
 One-shot visual imitation, end to end (paper Sections III-IV):
-  1. for every held-out colour (never seen in meta-training) the iLQG expert records ONE demonstration;
+  1. for every test colour (never seen in meta-training, nor by any choice made in developing the
+     package: `oneshot.world.palette`) the iLQG expert records ONE demonstration;
   2. the meta-trained policy adapts to that demo by gradient descent (eq. 1; the default profile takes
      one step on its first convolution layer, docs/results.md);
   3. the adapted policy acts in new scenes of that colour (new positions, new distractors).
 Prints the one-shot success rate (with a 95% interval) and the unadapted policy's for contrast, and
 writes two pictures to DIR, the target ringed and the arm's base and hand marked in every frame:
-  one_shot.png        for 4 held-out colours, the demo above the adapted policy's trial in a new scene,
+  one_shot.png        for 4 test colours, the demo above the adapted policy's trial in a new scene,
                       each row labelled with the colour and the trial's outcome (a failure among them if
                       any trial failed);
   one_shot_trial.gif  one colour's demo, and the policy before and after adapting in the SAME new scene,
@@ -33,7 +34,8 @@ from oneshot.training.scoring import wilson_interval
 from oneshot.world.reach import ReachWorld, WorldConfig, closest_object
 
 PRETRAINED = os.path.join(os.path.dirname(__file__), "pretrained", "mil_default.npz")
-SHOWN_COLOURS = 4           # held-out colours in the film strip, one trial each
+SHOWN_COLOURS = 4           # test colours in the film strip, one trial each
+SPLIT = "test"              # the colours the demo shows: never seen by training or by any choice
 # The ways a trial fails, as `outcome` tells them apart.
 NEAR_MISS, DISTRACTOR, ASTRAY = "missed: near miss", "missed: went to a distractor", "missed: near no disc"
 
@@ -134,11 +136,11 @@ def main(argv=None):
     # Demos like the ones the policy was meta-trained on (with the same DART noise, if any).
     expert_cfg = controller.ExpertConfig(action_noise=ckpt["config"].demo_noise if ckpt else 0.0)
 
-    # 1. One expert demonstration per held-out colour, in the world the policy was trained in (its image
+    # 1. One expert demonstration per test colour, in the world the policy was trained in (its image
     # size, horizon, arm and palette; older checkpoints record only the image size).
-    world = ReachWorld(dataclasses.replace(fit_check.world_config(ckpt) if ckpt else WorldConfig(), split="heldout"))
-    colours = palette.split_colours("heldout", world.config.palette)
-    print(f"1. The iLQG expert records ONE demonstration for each of the {len(colours)} held-out colours")
+    world = ReachWorld(dataclasses.replace(fit_check.world_config(ckpt) if ckpt else WorldConfig(), split=SPLIT))
+    colours = palette.split_colours(SPLIT, world.config.palette)
+    print(f"1. The iLQG expert records ONE demonstration for each of the {len(colours)} {SPLIT} colours")
     demos = {}
     for i, colour in enumerate(colours):
         d = controller.demonstrate(world, seed=args.seed * 1000 + i, options={"target_colour": int(colour)},
@@ -171,14 +173,14 @@ def main(argv=None):
         demo = imitation.prepare_demos(d["images"], d["states"], d["actions"], max_torque)
         adapted = method.conditioner(params)(demo)
         for j in range(args.trials):
-            seed = imitation.trial_seed(args.seed, i, j)       # trial scenes, seeded as in `oneshot.training.scoring`
+            seed = imitation.trial_seed(args.seed, i, j, SPLIT)     # trial scenes, seeded as evaluate's
             trials[i, j] = (imitation.rollout(adapted, world, seed, colour),
-                            imitation.rollout(params, world, seed, colour))   # the same scene, unadapted
+                            imitation.rollout(method.unadapted(params)(demo), world, seed, colour))   # unadapted
             wins += trials[i, j][0]["success"]
             base_wins += trials[i, j][1]["success"]
     n = len(demos) * args.trials
     lo, hi = wilson_interval(wins, n)
-    print(f"\none-shot success on held-out colours: {wins}/{n} = {wins / n:.2f} (95% CI {lo:.2f}-{hi:.2f})")
+    print(f"\none-shot success on {SPLIT} colours: {wins}/{n} = {wins / n:.2f} (95% CI {lo:.2f}-{hi:.2f})")
     print(f"the same policy without adaptation:   {base_wins}/{n} = {base_wins / n:.2f}")
 
     # 4. Pictures: a film strip of demos and adapted trials (a failure among them if there was one),

@@ -1,33 +1,42 @@
 """One-shot success rate of a meta-trained policy: `python -m oneshot.evaluate CHECKPOINT --help`.
 
-Paper Section IV's protocol: for each held-out colour, take ONE demonstration of it, adapt (eq. 1),
-and run the adapted policy in new scenes of that colour (new positions, new distractors); success is
-the end effector within 0.05 m of the target over the final fifth of the episode. Reported with a
-95% Wilson score interval, and on meta-training colours for contrast.
+Paper Section IV's protocol: for each colour of a held-out split, take ONE demonstration of it, adapt
+(eq. 1), and run the adapted policy in new scenes of that colour (new positions, new distractors);
+success is the end effector within 0.05 m of the target over the final fifth of the episode. Reported
+with a 95% Wilson score interval, and on meta-training colours for contrast.
+
+    python -m oneshot.evaluate CHECKPOINT                  # the validation colours: for every choice
+    python -m oneshot.evaluate CHECKPOINT --split test     # the test colours: once, to report
+
+The datasets are the checkpoint's own (the paths its run recorded) unless a flag names others; if any
+is missing, one message names them all and the commands that make them.
 """
 import argparse
 import dataclasses
 import json
-import os
+
+from oneshot import methods
 from oneshot.data import datasets
 from oneshot.maml import imitation
-from oneshot import methods
 from oneshot.tools import cli, files
-from oneshot.training import checkpoint, fit_check
-from oneshot.world import palette
-from oneshot.world.palette import PaletteConfig
+from oneshot.training import checkpoint, fit_check, run_data
 from oneshot.training.scoring import adaptation_gain, colour_breakdown, wilson_interval
+
+FLAGS = {"train": "--train", "validation": "--validation", "test": "--test"}
 
 
 def main(argv=None):
     p = cli.Parser(prog="python -m oneshot.evaluate", description=__doc__,
                    formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoint", help="a checkpoint written by `python -m oneshot.train`")
-    p.add_argument("--heldout", default="data/heldout.npz", help="held-out demonstrations (.npz; '' to skip)")
-    p.add_argument("--train", default="data/train.npz",
-                   help="meta-training demonstrations, for the contrast (.npz; '' to skip)")
+    p.add_argument("--split", choices=("validation", "test"), default="validation",
+                   help="the held-out colours scored: validation (default; for choices) or test (to report, once)")
+    p.add_argument("--validation", default=None, help="validation demonstrations (.npz; default: the checkpoint's)")
+    p.add_argument("--test", default=None, help="test demonstrations (.npz; default: the checkpoint's)")
+    p.add_argument("--train", default=None,
+                   help="meta-training demonstrations, for the contrast (.npz; default: the checkpoint's; '' to skip)")
     p.add_argument("--trials", type=cli.positive_int, default=10,
-                   help="trials per colour (default 10: 120 held-out trials)")
+                   help="trials per colour (default 10: 120 trials on the 12 validation colours)")
     p.add_argument("--seed", type=cli.non_negative_int, default=0, help="seed of the trial scenes")
     p.add_argument("--unadapted", action="store_true",
                    help="also run the policy without adaptation on the held-out colours (does adapting help?)")
@@ -45,14 +54,17 @@ def main(argv=None):
     p.add_argument("--json", type=cli.writable_file, default=None,
                    help="also write the results to this JSON file (checked before evaluating)")
     args = p.parse_args(argv)
-    splits = [(name, path) for name, path in (("heldout", args.heldout), ("train", args.train)) if path]
-    if not splits:
-        p.error("--heldout and --train are both '': nothing to evaluate")
+    if getattr(args, args.split) == "":
+        p.error(f"{FLAGS[args.split]} '' names no dataset, but the {args.split} colours are what this scores; "
+                f"name their dataset, or drop the flag to use the checkpoint's")
     ckpt = checkpoint.load(args.checkpoint)
     params, cfg = checkpoint.policy_params(ckpt, args.raw), ckpt["config"]
     if args.method is not None and args.method != cfg.method:      # the checkpoint is not what was asked for
         p.error(f"{args.checkpoint} holds a {cfg.method!r} policy, not {args.method!r}; train one with "
                 f"`python -m oneshot.train --method {args.method}`")
+    # The datasets: the checkpoint's own, unless a flag names another (its collect command then writes there).
+    cfg = dataclasses.replace(cfg, **{f"{split}_data": getattr(args, split) for split in FLAGS
+                                      if getattr(args, split)})
     cfg = dataclasses.replace(cfg, **{k: v for k, v in (("alpha", args.alpha), ("inner_steps", args.inner_steps))
                                       if v is not None})
     try:
@@ -61,43 +73,41 @@ def main(argv=None):
         p.error(f"{e} (--alpha >= 0, --inner-steps >= 0)")
     if args.unadapted and not method.adapts:
         p.error(f"--unadapted compares a policy before and after eq. (1); {cfg.method!r} does not adapt")
-    # Every dataset is found and checked before the first trial (not the second after the first's).
-    for name, path in splits:
-        if not os.path.exists(path):
-            split, flag, demos, seed = (("heldout", "--heldout", cfg.heldout_demos, 1) if name == "heldout" else
-                                        ("train", "--train", cfg.train_demos, 0))
-            tasks = len(palette.split_colours(split, PaletteConfig(mode=cfg.palette)))
-            make = (f"make it with `python -m oneshot.collect --out {path} --split {split} --tasks {tasks} "
-                    f"--demos {demos} --seed {seed} --noise {cfg.demo_noise}"
-                    f"{' --palette ' + cfg.palette if cfg.palette != 'hues' else ''}`")
-            raise FileNotFoundError(f"no {name} dataset at {path!r} ({flag}); {make}"
-                                    f"{'' if name == 'heldout' else ', or skip it with --train ' + repr('')}")
-    loaded = {name: datasets.load(path) for name, path in splits}
-    for name, path in splits:                # images, horizon, state, torques (and palette) as trained on
-        fit_check.check_data(ckpt, loaded[name]["metadata"], args.checkpoint, path, palette=not args.any_palette)
+    splits = [args.split] + (["train"] if args.train != "" else [])
+    # Every dataset is found and checked before the first trial; one message names all that are missing.
+    gone = run_data.missing(cfg, splits, FLAGS)
+    if gone:
+        raise FileNotFoundError(gone + ("" if "train" not in splits else ", or skip the contrast with --train ''"))
+    loaded = {split: datasets.load(run_data.spec(cfg, split)[0]) for split in splits}
+    for split, dataset in loaded.items():    # its split; images, horizon, state, torques (and palette) as trained on
+        path = run_data.spec(cfg, split)[0]
+        if dataset["metadata"]["split"] != split:
+            raise datasets.DatasetError(f"{path} holds {dataset['metadata']['split']} colours, not {split} colours; "
+                                        f"name the {split} dataset with {FLAGS[split]}")
+        fit_check.check_data(ckpt, dataset["metadata"], args.checkpoint, path, palette=not args.any_palette)
     results = {}
-    for name, dataset in loaded.items():
+    for split, dataset in loaded.items():
         condition = method.conditioner(params, seed=args.seed)
         r = imitation.one_shot_success(condition, dataset, args.trials, args.seed)
         r["ci95"] = lo, hi = wilson_interval(r["successes"], r["trials"])
-        print(f"{name} colours: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
+        print(f"{split} colours: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
               f"95% CI [{lo:.3f}, {hi:.3f}]; failures: {r['failures']['near_miss']} near misses (closest "
               f"to the target, but not within reach), {r['failures']['wrong_object']} at a distractor")
-        results[name] = r
-        if name == "heldout":
-            print(f"heldout colours, by colour: {colour_breakdown(r, args.trials, dataset['metadata'])}")
-        if name == "heldout" and method.adapts:
+        results[split] = r
+        if split == "train":
+            continue
+        print(f"{split} colours, by colour: {colour_breakdown(r, args.trials, dataset['metadata'])}")
+        if method.adapts:
             g = adaptation_gain(params, dataset, method.conditioner(params))
-            print(f"heldout colours: eq. (2) loss on a second demo {g['before']:.3f} before adapting on "
+            print(f"{split} colours: eq. (2) loss on a second demo {g['before']:.3f} before adapting on "
                   f"one demo, {g['after']:.3f} after ({g['pairs']} pairs)")
             results["adaptation_gain"] = g
-        if args.unadapted and name == "heldout":
-            u = imitation.one_shot_success(method.unadapted(params), dataset, args.trials,
-                                           args.seed)
+        if args.unadapted:
+            u = imitation.one_shot_success(method.unadapted(params), dataset, args.trials, args.seed)
             u["ci95"] = lo, hi = wilson_interval(u["successes"], u["trials"])
-            print(f"heldout colours, unadapted policy: success {u['rate']:.3f} ({u['successes']}/{u['trials']}), "
+            print(f"{split} colours, unadapted policy: success {u['rate']:.3f} ({u['successes']}/{u['trials']}), "
                   f"95% CI [{lo:.3f}, {hi:.3f}]")
-            results["heldout_unadapted"] = u
+            results[f"{split}_unadapted"] = u
     if args.json:
         written = {k: dict(v, per_colour={str(c): x for c, x in v["per_colour"].items()})
                    if "per_colour" in v else v for k, v in results.items()}

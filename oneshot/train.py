@@ -47,7 +47,7 @@ def main(argv=None):
     kinds_of = {name: cli.positive_int for name in ("iterations", "meta_batch", "log_every", "eval_trials",
                                                     "checkpoint_every", "shards", "lstm_units")}
     kinds_of.update(train_demos=cli.at_least(2, " (MAML adapts on one demo and scores another)"),
-                    heldout_demos=cli.at_least(2, " (one to adapt on, another to evaluate)"))
+                    validation_demos=cli.at_least(2, " (one to adapt on, another to evaluate)"))
     choices = {"lr_schedule": ("constant", "cosine"), "inner_params": sorted(INNER_PARAMS), "method": methods.NAMES,
                "palette": palette.MODES}
     for field in dataclasses.fields(TrainConfig):
@@ -81,7 +81,8 @@ def main(argv=None):
         except Exception:                        # a damaged file: train() says what is wrong with it
             pass
     try:
-        for path, split, demos, _ in run_data.specs(cfg):
+        for split in ("train", "validation"):
+            path, demos, _ = run_data.spec(cfg, split)
             flag = f"--{split}-demos"
             if not os.path.exists(path):
                 tasks = len(palette.split_colours(split, world.palette))

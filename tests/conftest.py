@@ -2,17 +2,31 @@ import numpy as np
 import pytest
 
 from oneshot.data import collection, datasets
+from oneshot.expert.controller import ExpertConfig
+from oneshot.training.config import PROFILES
+
+SMOKE = PROFILES["smoke"]
 
 
 @pytest.fixture(scope="session")
-def tiny_datasets(tmp_path_factory):
-    """Small real datasets: 3 training colours x 3 demos, 2 held-out colours x 2 demos."""
+def tiny_split_datasets(tmp_path_factory):
+    """Small real datasets, collected as the smoke profile collects (its seeds and DART noise): 3
+    meta-training colours x 3 demos, 2 validation colours x 2 demos, 2 test colours x 2 demos.
+    Returns {split: path}."""
     folder = tmp_path_factory.mktemp("data")
-    train = folder / "tiny_train.npz"
-    heldout = folder / "tiny_heldout.npz"
-    datasets.save(collection.collect(3, 3, "train", seed=0, workers=1, progress=False), train)
-    datasets.save(collection.collect(2, 2, "heldout", seed=1, workers=1, progress=False), heldout)
-    return str(train), str(heldout)
+    expert_cfg = ExpertConfig(action_noise=SMOKE.demo_noise)
+    paths = {}
+    for split, tasks, demos, seed in (("train", 3, 3, 0), ("validation", 2, 2, 1), ("test", 2, 2, 2)):
+        paths[split] = str(folder / f"tiny_{split}.npz")
+        datasets.save(collection.collect(tasks, demos, split, seed=seed, workers=1, expert_cfg=expert_cfg,
+                                         progress=False), paths[split])
+    return paths
+
+
+@pytest.fixture(scope="session")
+def tiny_datasets(tiny_split_datasets):
+    """(meta-training, validation) paths of `tiny_split_datasets`."""
+    return tiny_split_datasets["train"], tiny_split_datasets["validation"]
 
 
 @pytest.fixture

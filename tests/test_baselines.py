@@ -94,7 +94,7 @@ def test_the_lstm_carries_the_demo_in_its_state(rng):
 def test_a_random_policy_of_zero_torque_succeeds_exactly_when_the_target_is_already_within_reach():
     """Analytic expectation on a tiny case: with std 0 the arm never moves (a planar arm at rest,
     no gravity), so a trial succeeds iff the target lies within the success radius of the start."""
-    world = ReachWorld(WorldConfig(split="heldout"))
+    world = ReachWorld(WorldConfig(split="validation"))
     policy = random_policy(0.0, np.random.default_rng(0))
     start = None
     for seed in range(40):

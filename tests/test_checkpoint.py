@@ -172,7 +172,7 @@ def test_check_data_accepts_matching_data_and_compares_recorded_state_layouts(tm
     save_tiny(tmp_path / "c.npz")
     ckpt = checkpoint.load(tmp_path / "c.npz")
     assert ckpt["state_layout"] == list(datasets.STATE_LAYOUT)
-    assert fit_check.check_data(ckpt, metadata(split="heldout"), "c.npz", "d.npz") is None
+    assert fit_check.check_data(ckpt, metadata(split="validation"), "c.npz", "d.npz") is None
     older = metadata()
     older["world"]["palette"] = {"heldout_every": 4, "min_separation_deg": 60.0, "size": 48}   # older data's record
     fit_check.check_data(ckpt, older, "c.npz", "d.npz")

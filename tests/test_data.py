@@ -146,20 +146,20 @@ def test_failed_save_leaves_the_old_file_and_no_debris(small, tmp_path, monkeypa
 
 def test_bad_arguments_are_rejected():
     with pytest.raises(ValueError, match="has 12 colours"):
-        collection.collect(n_tasks=13, demos_per_task=2, split="heldout", progress=False)
+        collection.collect(n_tasks=13, demos_per_task=2, split="validation", progress=False)
     with pytest.raises(ValueError, match="at least 2 demos"):
         collection.collect(n_tasks=2, demos_per_task=1, progress=False)
     with pytest.raises(ValueError, match="unknown colour split"):
-        collection.collect(n_tasks=2, demos_per_task=2, split="validation", progress=False)
+        collection.collect(n_tasks=2, demos_per_task=2, split="holdout", progress=False)
 
 
 def test_command_line_writes_a_loadable_file(tmp_path, capsys):
     out = tmp_path / "cli.npz"
-    collect.main(["--out", str(out), "--split", "heldout", "--tasks", "2", "--demos", "2",
+    collect.main(["--out", str(out), "--split", "validation", "--tasks", "2", "--demos", "2",
                   "--workers", "1", "--seed", "1"])
     d = datasets.load(out)
-    assert d["metadata"]["split"] == "heldout"
-    assert set(d["task_colours"].tolist()) <= set(palette.split_colours("heldout").tolist())
+    assert d["metadata"]["split"] == "validation"
+    assert set(d["task_colours"].tolist()) <= set(palette.split_colours("validation").tolist())
     assert "expert success" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         collect.main(["--out", str(out), "--tasks", "0"])
@@ -170,7 +170,7 @@ def test_world_config_rebuilds_the_world_a_dataset_was_collected_in(tiny_dataset
     """From a saved dataset's metadata: the WorldConfig it was collected with (nested arm and palette
     configs, tuples as tuples), and a world that, reset with a recorded scene seed, shows the recorded
     first frame."""
-    for path, split in zip(tiny_datasets, ("train", "heldout")):
+    for path, split in zip(tiny_datasets, ("train", "validation")):
         dataset = datasets.load(path)
         cfg = datasets.world_config(dataset["metadata"])
         assert cfg == dataclasses.replace(WorldConfig(), split=split)
@@ -186,7 +186,7 @@ def test_world_config_round_trips_every_field_through_json():
                                     dt=0.04, substeps=7, q0=(0.1, 1.2)),
                       palette=PaletteConfig(mode="grid", size=36, heldout_every=6, min_separation_deg=45.0,
                                             saturations=(1.0, 0.6), values=(0.9, 0.7), guard=1),
-                      split="heldout", horizon=15, image_size=64, n_objects=2, arena_half_width=0.25,
+                      split="validation", horizon=15, image_size=64, n_objects=2, arena_half_width=0.25,
                       object_radius=0.02, min_object_radius=0.06, max_object_radius=0.2, success_radius=0.04,
                       min_separation=0.1, start_noise=0.01)
     for config, default in ((cfg, WorldConfig()), (cfg.arm, ArmConfig())):
@@ -288,7 +288,7 @@ def _metadata(path):
     (lambda m: m["world"].update(horizon=20), "its metadata says world.horizon = 20, but its arrays have 8"),
     (lambda m: m["world"].update(colour=3), r"its metadata does not describe a world \(TypeError: .*colour"),
     (lambda m: m["world"]["palette"].update(mode="rainbow"), "does not describe a world .*unknown palette mode"),
-    (lambda m: m.update(split="heldout"), "its metadata says split 'heldout', but its world's split is 'train'"),
+    (lambda m: m.update(split="validation"), "its metadata says split 'validation', but its world's split is 'train'"),
     (lambda m: m.update(state_layout=list(reversed(datasets.STATE_LAYOUT))), "its states are laid out as"),
 ])
 def test_metadata_the_package_reads_is_checked_on_loading(tiny_file, tmp_path, change, message):

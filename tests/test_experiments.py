@@ -15,6 +15,7 @@ from oneshot.experiments import sweep as sweeping
 from oneshot.training.scoring import wilson_interval
 from oneshot.experiments.fig2 import PROFILES, plan, run_context
 from oneshot.training import run_folder
+from oneshot.experiments import stats, summary
 from oneshot.experiments.summary import plot, summarise
 from oneshot.experiments import rows as sweep_rows
 from oneshot.experiments.rows import COLUMNS, RunSpec
@@ -197,9 +198,12 @@ def test_summarise_pools_seeds():
     assert (big["successes"], big["trials"]) == (255, 360)
     assert big["mean_rate"] == pytest.approx((0.75 + 0.5 + 0.875) / 3)
     assert (big["min_rate"], big["max_rate"]) == (0.5, 0.875)
-    # the Wilson 95% interval of the pooled 255/360 (not of a mean of three intervals), by hand:
-    # p = 0.70833, centre (p + z^2/2n) / (1 + z^2/n) = 0.70613, half-width 0.04676
-    assert big["ci_low"] == pytest.approx(0.65938, abs=1e-4) and big["ci_high"] == pytest.approx(0.75289, abs=1e-4)
+    # The interval includes the seeds' spread (these rows have no per-colour counts: seeds alone are
+    # resampled). By hand: the 27 equally likely draws of 3 of the rates {0.75, 0.5, 0.875}; each extreme
+    # (all three 0.5, all three 0.875) has probability 1/27 > 2.5%, so the interval is [0.5, 0.875]: far
+    # wider than the pooled binomial one (Wilson on 255/360: [0.659, 0.753]) that ignored the seeds.
+    assert (big["ci_low"], big["ci_high"]) == (0.5, 0.875)
+    assert "seeds and scored colours resampled" in s["interval"]
     assert s["config"]["name"] == "tiny" and s["runs"] == 4
     assert s["command"].endswith("--profile tiny")
     json.dumps(s)
@@ -335,3 +339,35 @@ def test_a_resumed_run_counts_the_training_time_of_its_killed_sittings(tmp_path)
         else:
             assert "wall" not in resumed and 1000 < resumed["wall_seconds"] < 1000 + 10 * whole["wall_seconds"]
 
+
+
+def test_the_two_level_interval_on_a_case_computed_by_hand():
+    """Two seeds x two colours, 2 trials each. Seed A: 1/2 and 2/2; seed B: 0/2 and 1/2. A replicate draws
+    2 seeds and 2 colours with replacement (16 equally likely draws); its rate is the mean over the drawn
+    seeds of their success on the drawn colours. The lowest, 0 (seeds B B, colours 1 1), and the highest,
+    1 (A A, 2 2), each have probability 1/16 > 2.5%: the interval is [0, 1] around the mean 0.5. The same
+    counts as a single pooled colour per seed give seed rates 0.75 and 0.25, the interval [0.25, 0.75]."""
+    successes, trials = np.array([[1, 2], [0, 1]]), np.full((2, 2), 2)
+    assert stats.interval(successes, trials) == (0.5, 0.0, 1.0)
+    assert stats.interval(successes.sum(1, keepdims=True), trials.sum(1, keepdims=True)) == (0.5, 0.25, 0.75)
+    # Differences are paired over colours, each point's seeds drawn on their own. One seed each: a point
+    # against itself is 0 in every replicate, against a copy one success better on every colour exactly
+    # +0.5 (2 trials a colour): the colours' spread cancels. With both seeds, the seeds' spread does not:
+    # A A against B B is 0.75 - 0.25, B B against A A the opposite, each with probability 1/16.
+    one = (successes[:1], trials[:1])
+    assert stats.difference_interval(one, one) == (0.0, 0.0, 0.0)
+    assert stats.difference_interval((one[0] + 1, one[1]), one) == (0.5, 0.5, 0.5)
+    assert stats.difference_interval((successes, trials), (successes, trials)) == (0.0, -0.5, 0.5)
+    with pytest.raises(ValueError, match="successes within trials"):
+        stats.interval(np.array([[3]]), np.array([[2]]))
+
+
+def test_compare_says_which_points_agree_within_their_interval():
+    def rows(successes_by_seed):
+        return [{"method": "mil-conv0", "size": 9, "colours": 3, "demos_per_colour": 3, "seed": seed, "iterations": 2,
+                 "successes": sum(per), "trials": 4 * len(per),
+                 "notes": json.dumps({"per_colour": {str(c): n for c, n in enumerate(per)}})}
+                for seed, per in enumerate(successes_by_seed)]
+    committed = rows([[2, 3, 1], [3, 2, 2], [2, 2, 1]])
+    assert [p["agree"] for p in summary.compare(rows([[2, 2, 2], [3, 3, 1], [1, 2, 2]]), committed)] == [True]
+    assert [p["agree"] for p in summary.compare(rows([[4, 4, 4], [4, 4, 4], [4, 4, 4]]), committed)] == [False]

@@ -33,7 +33,7 @@ def reach_torque(obs, q_goal):
     return np.clip(2.0 * (q_goal - obs["joint_angles"]) - 0.15 * obs["joint_velocities"], -0.5, 0.5)
 
 
-@pytest.mark.parametrize("kwargs", [{}, {"split": "heldout", "palette_mode": "grid", "image_size": 64,
+@pytest.mark.parametrize("kwargs", [{}, {"split": "validation", "palette_mode": "grid", "image_size": 64,
                                          "horizon": 10, "render_mode": "rgb_array"}])
 def test_check_env_passes_without_a_single_warning(kwargs):
     with warnings.catch_warnings():
@@ -46,9 +46,9 @@ def test_check_env_passes_without_a_single_warning(kwargs):
 
 
 def test_make_passes_its_arguments_to_the_world():
-    env = gymnasium.make(ENV_ID, split="heldout", target_colour=8, image_size=64, horizon=10)
+    env = gymnasium.make(ENV_ID, split="validation", target_colour=8, image_size=64, horizon=10)
     obs, info = env.reset(seed=0)
-    assert env.unwrapped.world.config.split == "heldout" and env.unwrapped.world.config.horizon == 10
+    assert env.unwrapped.world.config.split == "validation" and env.unwrapped.world.config.horizon == 10
     assert obs["image"].shape == (64, 64, 3) and info["target_colour"] == 8
     assert env.observation_space["image"].shape == (64, 64, 3)
     assert env.action_space.low.tolist() == [-0.5, -0.5] and env.action_space.high.tolist() == [0.5, 0.5]
@@ -188,7 +188,7 @@ def test_bad_arguments_are_rejected_with_a_message_naming_the_fix():
     with pytest.raises(ValueError, match="render_mode must be None or one of"):
         ReachEnv(render_mode="human")
     with pytest.raises(ValueError, match="choose a palette index from"):
-        ReachEnv(split="heldout", target_colour=1)       # hue 1 is a training colour
+        ReachEnv(split="validation", target_colour=1)       # hue 1 is a training colour
     with pytest.raises(ValueError, match="unknown reset options"):
         ReachEnv().reset(options={"colour": 5})
 

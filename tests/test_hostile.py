@@ -18,11 +18,12 @@ import pytest
 from oneshot import demo
 from oneshot.benchmark import __main__ as benchmark
 from oneshot.data import collection, datasets
+from oneshot.expert.controller import ExpertConfig
 from oneshot.maml import optim, shards
 from oneshot import methods
 from oneshot.methods.mil import MIL
 from oneshot.tools import cli
-from oneshot.training import checkpoint, config, fit_check, run_folder
+from oneshot.training import checkpoint, config, fit_check, run_data, run_folder
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
 from oneshot import collect, evaluate, train
@@ -108,7 +109,7 @@ def test_train_refuses_counts_of_zero(capsys, tmp_path, flag):
 def test_train_refuses_a_meta_batch_larger_than_memory(capsys, tmp_path):
     line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), "--meta-batch", HUGE,
                                            "--train-data", str(tmp_path / "train.npz"),
-                                           "--heldout-data", str(tmp_path / "heldout.npz")])
+                                           "--validation-data", str(tmp_path / "heldout.npz")])
     assert f"a meta-batch of {HUGE} tasks" in line and "PB of memory" in line and "smaller --meta-batch" in line
     nothing_written(tmp_path)                                     # no dataset collected either
 
@@ -121,27 +122,40 @@ def test_evaluate_refuses_trials_below_one(capsys, tiny_checkpoint, trials):
     assert "--trials" in line and ">= 1" in line
 
 
-def test_evaluate_with_no_datasets_says_so(capsys, tiny_checkpoint):
-    line, _ = refused(capsys, evaluate.main, [tiny_checkpoint, "--heldout", "", "--train", ""])
-    assert "nothing to evaluate" in line
+def test_evaluate_with_no_dataset_to_score_says_so(capsys, tiny_checkpoint):
+    line, _ = refused(capsys, evaluate.main, [tiny_checkpoint, "--validation", "", "--train", ""])
+    assert "--validation '' names no dataset, but the validation colours are what this scores" in line
+    line, _ = refused(capsys, evaluate.main, [tiny_checkpoint, "--split", "test", "--test", ""])
+    assert "--test '' names no dataset" in line
 
 
 def test_evaluate_names_a_missing_dataset_and_the_command_that_makes_it(capsys, tmp_path, tiny_checkpoint):
     missing = str(tmp_path / "heldout.npz")
-    line, out = refused(capsys, evaluate.main, [tiny_checkpoint, "--heldout", missing, "--train", ""])
+    line, out = refused(capsys, evaluate.main, [tiny_checkpoint, "--validation", missing, "--train", ""])
     cfg = config.PROFILES["smoke"]
-    assert (f"no heldout dataset at {missing!r} (--heldout)" in line and
-            f"python -m oneshot.collect --out {missing} --split heldout --tasks 12 --demos {cfg.heldout_demos}" in line)
+    assert (f"no dataset at {missing!r} (validation, --validation)" in line and
+            f"python -m oneshot.collect --out {missing} --split validation --tasks 12 --demos {cfg.validation_demos}"
+            f" --seed 1 --noise 0.1" in line)
     assert out == ""
 
 
 def test_evaluate_finds_a_missing_training_set_before_the_held_out_trials(capsys, tmp_path, tiny_checkpoint):
     heldout = tmp_path / "heldout.npz"
-    datasets.save(collection.collect(2, 2, "heldout", 1, 1, WorldConfig(image_size=8, horizon=10), progress=False), heldout)
-    line, out = refused(capsys, evaluate.main, [tiny_checkpoint, "--heldout", str(heldout),
+    datasets.save(collection.collect(2, 2, "validation", 1, 1, WorldConfig(image_size=8, horizon=10), progress=False), heldout)
+    line, out = refused(capsys, evaluate.main, [tiny_checkpoint, "--validation", str(heldout),
                                                 "--train", str(tmp_path / "train.npz")])
-    assert "no train dataset" in line and "--split train" in line and "--train ''" in line
+    assert "no dataset at" in line and "(train, --train)" in line and "--split train" in line and "--train ''" in line
     assert out == ""                                              # no held-out trial was run
+
+
+def test_evaluate_names_every_missing_dataset_in_one_message_with_the_commands(capsys, tmp_path, tiny_checkpoint):
+    """One round trip: the scored split's dataset and the training contrast's, both missing, both named,
+    and the commands that make them (a checkpoint's own paths and demo counts, not the default profile's)."""
+    line, out = refused(capsys, evaluate.main, [tiny_checkpoint, "--split", "test", "--test", str(tmp_path / "t.npz"),
+                                                "--train", str(tmp_path / "tr.npz")])
+    assert line.count("python -m oneshot.collect") == 2 and " && " in line
+    assert f"--out {tmp_path / 't.npz'} --split test --tasks 36 --demos 2 --seed 2" in line
+    assert f"--out {tmp_path / 'tr.npz'} --split train --tasks 36 --demos 3 --seed 0" in line and out == ""
 
 
 @pytest.mark.parametrize("where", ["folder", "under a file"])
@@ -183,8 +197,8 @@ def test_train_refuses_a_negative_evaluation_period(capsys, tmp_path):
 
 @pytest.fixture
 def tiny_cfg(tiny_datasets):
-    train_path, heldout_path = tiny_datasets
-    return dataclasses.replace(config.PROFILES["smoke"], train_data=train_path, heldout_data=heldout_path,
+    train_path, validation_path = tiny_datasets
+    return dataclasses.replace(config.PROFILES["smoke"], train_data=train_path, validation_data=validation_path,
                                iterations=6, checkpoint_every=100)
 
 
@@ -225,7 +239,7 @@ def test_a_signalled_training_saves_says_where_in_one_line_and_exits_130(tmp_pat
     run = tmp_path / "run"
     command = [sys.executable, "-m", "oneshot.train", "--profile", "smoke", "--run", str(run), "--iterations",
                "100000", "--checkpoint-every", "100000", "--train-data", tiny_datasets[0],
-               "--heldout-data", tiny_datasets[1]]
+               "--validation-data", tiny_datasets[1]]
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                env=dict(os.environ, PYTHONPATH=str(ROOT)),   # SIGINT as a terminal has it (a
                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # background shell ignores it)
@@ -250,7 +264,7 @@ def test_a_second_training_in_the_same_folder_is_refused(tmp_path, tiny_cfg):
     run = tmp_path / "run"
     with run_folder.lock_run(str(run)):                        # as a training process holds it
         done = subprocess.run([sys.executable, "-m", "oneshot.train", "--profile", "smoke", "--run", str(run),
-                               "--train-data", tiny_cfg.train_data, "--heldout-data", tiny_cfg.heldout_data],
+                               "--train-data", tiny_cfg.train_data, "--validation-data", tiny_cfg.validation_data],
                               capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
     assert done.returncode == 1 and done.stderr == (f"error: another process (pid {os.getpid()}) is training in "
                                                     f"{str(run)!r}; wait for it to end, or use another --run folder\n")
@@ -261,7 +275,7 @@ def test_a_second_training_in_the_same_folder_is_refused(tmp_path, tiny_cfg):
 def test_a_run_folder_that_is_a_file_is_refused(capsys, tmp_path, tiny_cfg):
     (tmp_path / "run").write_text("")
     line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"),
-                                           "--train-data", tiny_cfg.train_data, "--heldout-data", tiny_cfg.heldout_data])
+                                           "--train-data", tiny_cfg.train_data, "--validation-data", tiny_cfg.validation_data])
     assert "is a file; name a folder for the run" in line
 
 
@@ -300,8 +314,8 @@ def test_a_bare_resume_keeps_the_runs_own_length_and_step(capsys, tmp_path, tiny
     """`--resume` alone (what the Ctrl-C message says to type) continues with the run's --lr and
     --iterations, not the profile's."""
     run = str(tmp_path / "run")
-    given = ["--profile", "smoke", "--run", run, "--train-data", tiny_cfg.train_data, "--heldout-data",
-             tiny_cfg.heldout_data]
+    given = ["--profile", "smoke", "--run", run, "--train-data", tiny_cfg.train_data, "--validation-data",
+             tiny_cfg.validation_data]
     run_folder.train(dataclasses.replace(tiny_cfg, lr=1e-4, iterations=2, checkpoint_every=1), run, progress=False,
                 stop_after=1)
     train.main(given + ["--resume"])
@@ -327,7 +341,7 @@ def test_resume_may_lower_the_learning_rate_and_logs_it(tmp_path, tiny_cfg):
 def trained(tmp_path_factory, tiny_datasets):
     """A tiny profile's checkpoint after one iteration (it records the 32x32, 20-step world of its data)."""
     run = tmp_path_factory.mktemp("trained")
-    cfg = dataclasses.replace(config.PROFILES["smoke"], train_data=tiny_datasets[0], heldout_data=tiny_datasets[1],
+    cfg = dataclasses.replace(config.PROFILES["smoke"], train_data=tiny_datasets[0], validation_data=tiny_datasets[1],
                               iterations=1)
     run_folder.train(cfg, run, progress=False)
     return str(run / "checkpoint.npz")
@@ -337,12 +351,12 @@ def trained(tmp_path_factory, tiny_datasets):
 def heldout_16(tmp_path_factory):
     """Held-out demos of 16x16 images: not what any checkpoint here was trained on."""
     path = tmp_path_factory.mktemp("h16") / "heldout16.npz"
-    datasets.save(collection.collect(2, 2, "heldout", 1, 1, WorldConfig(image_size=16, horizon=8), progress=False), path)
+    datasets.save(collection.collect(2, 2, "validation", 1, 1, WorldConfig(image_size=16, horizon=8), progress=False), path)
     return str(path)
 
 
 def test_evaluate_refuses_data_of_another_image_size_naming_both(capsys, trained, heldout_16):
-    line, out = refused(capsys, evaluate.main, [trained, "--heldout", heldout_16, "--train", ""])
+    line, out = refused(capsys, evaluate.main, [trained, "--validation", heldout_16, "--train", ""])
     assert line == (f"error: {trained} was trained on 32x32 images but {heldout_16} holds 16x16 images; "
                     f"use data collected with --image-size 32")
     assert out == ""                                              # refused before the first trial
@@ -352,8 +366,8 @@ def test_the_shipped_policy_refuses_64x64_data(capsys, tmp_path):
     """The issue's case: the shipped 32x32 policy on 64x64 held-out data reported 4/12 instead of 9/12."""
     shipped = str(ROOT / "oneshot" / "pretrained" / "mil_default.npz")
     heldout = str(tmp_path / "heldout64.npz")
-    datasets.save(collection.collect(2, 2, "heldout", 1, 1, WorldConfig(image_size=64, horizon=8), progress=False), heldout)
-    line, _ = refused(capsys, evaluate.main, [shipped, "--heldout", heldout, "--train", ""])
+    datasets.save(collection.collect(2, 2, "validation", 1, 1, WorldConfig(image_size=64, horizon=8), progress=False), heldout)
+    line, _ = refused(capsys, evaluate.main, [shipped, "--validation", heldout, "--train", ""])
     assert "trained on 32x32 images" in line and "holds 64x64 images" in line
 
 
@@ -361,9 +375,27 @@ def test_resume_refuses_a_training_set_replaced_by_another_image_size(tmp_path, 
     run = tmp_path / "run"
     run_folder.train(dataclasses.replace(tiny_cfg, iterations=1), run, progress=False)
     other = tmp_path / "train16.npz"
-    datasets.save(collection.collect(3, 3, "train", 0, 1, WorldConfig(image_size=16, horizon=8), progress=False), other)
+    datasets.save(collection.collect(3, 3, "train", 0, 1, WorldConfig(image_size=16, horizon=8),
+                                     ExpertConfig(action_noise=0.1), progress=False), other)
     with pytest.raises(checkpoint.CheckpointError, match="trained on 32x32 images but .*train16.npz holds 16x16"):
         run_folder.train(dataclasses.replace(tiny_cfg, train_data=str(other)), run, resume=True, progress=False)
+
+
+@pytest.mark.parametrize("change, says", [
+    ({"expert_cfg": ExpertConfig(action_noise=0.0)}, "noise 0.0, not 0.1"),          # notebook 1's old command
+    ({"seed": 5}, "seed 5, not 0"),
+    ({"split": "validation"}, "split 'validation', not 'train'"),
+    ({"demos_per_task": 2}, "2 demos per colour, not 3"),                             # 2-demo data at the path
+])
+def test_training_refuses_data_collected_with_other_settings_than_its_profile(tmp_path, tiny_cfg, change, says):
+    settings = dict(n_tasks=3, demos_per_task=3, split="train", seed=0, workers=1,
+                    expert_cfg=ExpertConfig(action_noise=0.1), progress=False)
+    other = tmp_path / "train.npz"
+    datasets.save(collection.collect(**{**settings, **change}), other)
+    with pytest.raises(run_data.DataMismatch, match=f"{other} was collected with other settings than this run's "
+                                                    f"train data: {says}.*python -m oneshot.collect --out {other}"):
+        run_folder.train(dataclasses.replace(tiny_cfg, train_data=str(other)), tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()                          # refused before anything was written
 
 
 def test_the_demo_acts_in_the_world_the_policy_was_trained_in(trained):
@@ -375,13 +407,13 @@ def test_the_demo_acts_in_the_world_the_policy_was_trained_in(trained):
 
 
 def test_evaluate_on_another_palette_only_when_asked(capsys, tmp_path, trained):
-    grid = str(tmp_path / "grid_heldout.npz")
-    datasets.save(collection.collect(2, 2, "heldout", 1, 1, WorldConfig(palette=PaletteConfig(mode="grid")),
+    grid = str(tmp_path / "grid_validation.npz")
+    datasets.save(collection.collect(2, 2, "validation", 1, 1, WorldConfig(palette=PaletteConfig(mode="grid")),
                               progress=False), grid)
-    line, _ = refused(capsys, evaluate.main, [trained, "--heldout", grid, "--train", ""])
+    line, _ = refused(capsys, evaluate.main, [trained, "--validation", grid, "--train", ""])
     assert "trained on the 'hues' palette but" in line and "--any-palette" in line
-    results = cli.run(evaluate.main, [trained, "--heldout", grid, "--train", "", "--trials", "1", "--any-palette"])
-    assert results["heldout"]["trials"] == 2                     # a transfer test: it runs
+    results = cli.run(evaluate.main, [trained, "--validation", grid, "--train", "", "--trials", "1", "--any-palette"])
+    assert results["validation"]["trials"] == 2                     # a transfer test: it runs
 
 
 @pytest.mark.parametrize("damaged", ["checkpoint", "dataset"])
@@ -391,7 +423,7 @@ def test_evaluate_names_a_damaged_file(capsys, tmp_path, trained, tiny_datasets,
     raw = bytearray(pathlib.Path(source).read_bytes())
     raw[len(raw) // 2] ^= 0x10                                    # one bit, in the middle of the arrays
     broken.write_bytes(bytes(raw))
-    argv = [str(broken), "--heldout", tiny_datasets[1]] if damaged == "checkpoint" else [trained, "--heldout", str(broken)]
+    argv = [str(broken), "--validation", tiny_datasets[1]] if damaged == "checkpoint" else [trained, "--validation", str(broken)]
     line, out = refused(capsys, evaluate.main, argv + ["--train", ""])
     assert repr(str(broken)) in line and ("re-train it" in line or "re-create it" in line) and out == ""
 
@@ -403,7 +435,7 @@ def test_evaluate_says_a_diverged_policy_diverged(capsys, tmp_path, trained, tin
     path = tmp_path / "diverged.npz"
     checkpoint.save(path, huge, optim.adam_init(huge), 1, ckpt["rng"], ckpt["config"], ckpt["network"],
                     world=ckpt["world"])
-    line, _ = refused(capsys, evaluate.main, [str(path), "--heldout", tiny_datasets[1], "--train", ""])
+    line, _ = refused(capsys, evaluate.main, [str(path), "--validation", tiny_datasets[1], "--train", ""])
     assert "the policy's torques are" in line and "use an earlier checkpoint" in line
 
 

@@ -151,8 +151,22 @@ def test_trial_seeds_are_distinct_and_the_ones_evaluation_always_used():
         assert imitation.trial_seed(s, 99, 999) < imitation.trial_seed(s + 1, 0, 0)
 
 
-@pytest.mark.parametrize("seed, task, trial", [(0, 100, 0), (0, 0, 1000), (-1, 0, 0), (0, -1, 0), (0, 0, -1)])
-def test_trial_seed_outside_its_range_is_refused_naming_the_range(seed, task, trial):
-    with pytest.raises(ValueError, match=rf"0 <= task < 100, 0 <= trial < 1000 and seed >= 0; "
-                                         rf"got seed={seed}, task={task}, trial={trial}"):
-        imitation.trial_seed(seed, task, trial)
+def test_trial_seeds_are_distinct_for_any_number_of_colours_and_trials_and_the_test_splits_are_its_own():
+    """No hidden limit: 108 grid colours (or 10^6 trials) get seeds too, distinct from each other, from the
+    seeds of the first 100 x 1000, and across splits; the test split never shares a seed with another."""
+    splits = ("train", "validation", "test")
+    seeds = {(split, s, i, j): imitation.trial_seed(s, i, j, split)
+             for split in splits for s in (0, 1, 3) for i in (0, 7, 99, 100, 107, 5000) for j in (0, 9, 999, 1000, 10 ** 6)}
+    assert len(set(seeds.values())) == len(seeds) - sum(1 for (split, s, i, j) in seeds     # train and validation
+                                                        if split == "train" and i < 100 and j < 1000)   # share old seeds
+    test = {v for k, v in seeds.items() if k[0] == "test"}
+    assert not test & {v for k, v in seeds.items() if k[0] != "test"}
+    assert min(test) >= 2 ** 64 > 2 ** 63 > max(imitation.trial_seed(s, 99, 999) for s in (0, 1, 3))
+    assert imitation.trial_seed(0, 3, 4, "validation") == imitation.trial_seed(0, 3, 4) == 1_000_003 + 3004
+
+
+@pytest.mark.parametrize("seed, task, trial, split", [(-1, 0, 0, "test"), (0, -1, 0, "validation"),
+                                                      (0, 0, -1, "train"), (0, 0.5, 0, "test"), (0, 0, 0, "heldout")])
+def test_trial_seed_refuses_what_is_not_a_count_or_a_split(seed, task, trial, split):
+    with pytest.raises(ValueError, match="non-negative int|splits"):
+        imitation.trial_seed(seed, task, trial, split)

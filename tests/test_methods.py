@@ -24,8 +24,8 @@ from oneshot.training import checkpoint, config, run_folder
 
 @pytest.fixture
 def smoke(tiny_datasets):
-    train_path, heldout_path = tiny_datasets
-    return dataclasses.replace(config.PROFILES["smoke"], train_data=train_path, heldout_data=heldout_path,
+    train_path, validation_path = tiny_datasets
+    return dataclasses.replace(config.PROFILES["smoke"], train_data=train_path, validation_data=validation_path,
                                iterations=6, checkpoint_every=100, eval_trials=1)
 
 
@@ -44,10 +44,10 @@ def test_every_method_of_the_registry_trains_checkpoints_resumes_and_evaluates(n
     assert ckpt["config"] == cfg and _same(ckpt["params"], whole)
     method = methods.of(cfg)
     assert ckpt["iteration"] == cfg.iterations and (ckpt["ema"] is None) == (not method.learns or cfg.ema == 0)
-    results = evaluate.main([str(tmp_path / "split" / "checkpoint.npz"), "--heldout", cfg.heldout_data, "--train", "",
+    results = evaluate.main([str(tmp_path / "split" / "checkpoint.npz"), "--validation", cfg.validation_data, "--train", "",
                              "--trials", "2"] + (["--unadapted"] if method.adapts else []))
-    assert results["heldout"]["trials"] == 4 and 0 <= results["heldout"]["successes"] <= 4
-    assert ("heldout_unadapted" in results) == ("adaptation_gain" in results) == method.adapts
+    assert results["validation"]["trials"] == 4 and 0 <= results["validation"]["successes"] <= 4
+    assert ("validation_unadapted" in results) == ("adaptation_gain" in results) == method.adapts
 
 
 class Imitator(Method):
@@ -71,11 +71,11 @@ def test_a_new_method_needs_only_its_module_and_a_registry_line(smoke, tmp_path,
     params = run_folder.train(cfg, tmp_path / "run", progress=False)
     ckpt = checkpoint.load(tmp_path / "run" / "checkpoint.npz")
     assert _same(ckpt["params"], params) and ckpt["config"].method == "imitator"
-    results = evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--heldout", cfg.heldout_data, "--train", "",
+    results = evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--validation", cfg.validation_data, "--train", "",
                              "--trials", "1", "--method", "imitator"])
-    assert results["heldout"]["trials"] == 2 and "adaptation_gain" not in results
+    assert results["validation"]["trials"] == 2 and "adaptation_gain" not in results
     with pytest.raises(SystemExit):                                   # it does not adapt: no unadapted policy
-        evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--heldout", cfg.heldout_data, "--unadapted"])
+        evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--validation", cfg.validation_data, "--unadapted"])
 
 
 def test_nothing_outside_the_methods_modules_tests_a_methods_name():

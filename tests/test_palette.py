@@ -35,14 +35,14 @@ def rgb_distances(a, b):
 # --- "hues" mode: today's palette, bit for bit (the shipped policy and its datasets depend on it) ----
 
 def test_hues_mode_is_the_original_palette_bit_for_bit():
-    rgb = palette.palette_rgb()
+    rgb = palette.palette_rgb()[:palette.n_grid()]                  # the test colours come after
     assert rgb.shape == (48, 3) and rgb.dtype == np.uint8
     assert hashlib.sha256(rgb.tobytes()).hexdigest() == \
         "71d471778ba6095d68ad898241a25446f4575d3cca0d16c7693a86a7a9543f59"
     assert rgb[[0, 1, 5, 16, 47]].tolist() == [[255, 0, 0], [255, 32, 0], [255, 159, 0], [0, 255, 0], [255, 0, 32]]
-    assert palette.split_colours("heldout").tolist() == list(range(0, 48, 4))
+    assert palette.split_colours("validation").tolist() == list(range(0, 48, 4))
     assert palette.split_colours("train").tolist() == [i for i in range(48) if i % 4]
-    assert palette.n_colours() == 48
+    assert (palette.n_grid(), palette.n_colours()) == (48, 84)
     assert palette.hue_distance_deg(np.arange(48)[:, None], np.arange(48)[None]).sum() == 207360.0
     assert palette.colour_name(4) == "hue 30 deg" and palette.colour_name(5) == "hue 37.5 deg"
 
@@ -52,7 +52,7 @@ def test_hues_mode_scene_colours_are_the_original_draws():
     draws = []
     for seed in range(50):
         rng = np.random.default_rng(seed)
-        for split in palette.SPLITS:
+        for split in ("train", "validation"):                      # the two splits of that code
             target = int(rng.choice(palette.split_colours(split)))
             draws.append(palette.sample_scene_colours(target, 3, split, rng))
     draws = np.stack(draws).astype(np.int64)
@@ -89,9 +89,9 @@ def test_bad_palette_configs_are_refused_with_their_value():
 # --- "grid" mode ----------------------------------------------------------------------------------
 
 def test_grid_counts_and_split_layout():
-    n = palette.n_colours(GRID)
-    train, held = palette.split_colours("train", GRID), palette.split_colours("heldout", GRID)
-    assert (n, len(train), len(held)) == (648, 324, 108)
+    n = palette.n_grid(GRID)
+    train, held = palette.split_colours("train", GRID), palette.split_colours("validation", GRID)
+    assert (n, palette.n_colours(GRID), len(train), len(held)) == (648, 696, 324, 108)
     for idx in (train, held):
         assert np.issubdtype(idx.dtype, np.integer) and np.all(np.diff(idx) > 0)
         assert idx.min() >= 0 and idx.max() < n
@@ -107,20 +107,21 @@ def test_grid_counts_and_split_layout():
 def test_grid_rows_are_the_named_hue_saturation_value():
     """Every row of palette_rgb against an independent HSV formula, at the HSV its name states."""
     rgb = palette.palette_rgb(GRID)
-    assert rgb.shape == (648, 3) and rgb.dtype == np.uint8
-    names = [palette.colour_name(i, GRID) for i in range(648)]
-    assert len(set(names)) == 648 and names[58] == "hue 30 deg, sat 0.75, val 0.8"
+    assert rgb.shape == (696, 3) and rgb.dtype == np.uint8
+    names = [palette.colour_name(i, GRID) for i in range(696)]
+    assert len(set(names)) == 696 and names[58] == "hue 30 deg, sat 0.75, val 0.8"
+    assert names[648:650] == ["hue 0 deg, sat 0.875, val 0.9", "hue 0 deg, sat 0.875, val 0.7"]   # test colours
     hsv = np.array([re.fullmatch(r"hue (\S+) deg, sat (\S+), val (\S+)", s).groups() for s in names], float)
     assert np.abs(rgb - hsv_to_rgb255(*hsv.T)).max() <= 0.5 + 1e-9
     assert palette.hue_distance_deg(0, 8, GRID) == 0 and palette.hue_distance_deg(0, 9, GRID) == 5
     assert palette.hue_distance_deg(0, 647, GRID) == 5                 # around the wheel
 
 
-def test_grid_heldout_colours_keep_their_margin_from_training_colours():
+def test_grid_validation_colours_keep_their_margin_from_training_colours():
     """The documented margins: >= 10 degrees of hue, and in RGB >= 12 (held-out to training) and >= 6
     (any two training colours), the minima over every pair (module docstring)."""
     rgb = palette.palette_rgb(GRID)
-    train, held = palette.split_colours("train", GRID), palette.split_colours("heldout", GRID)
+    train, held = palette.split_colours("train", GRID), palette.split_colours("validation", GRID)
     assert palette.hue_distance_deg(held[:, None], train[None], GRID).min() == 10
     assert rgb_distances(rgb[held], rgb[train]).min() == pytest.approx(12.0)
     d = rgb_distances(rgb[train], rgb[train])
@@ -160,8 +161,8 @@ def test_grid_colours_outside_the_split_are_refused():
     for split in palette.SPLITS:
         with pytest.raises(ValueError, match=f"colour 9 is not a '{split}' colour"):
             palette.check_colour(guard, split, GRID)
-    with pytest.raises(ValueError, match=r"\[0, 648\)"):
-        palette.colour_name(648, GRID)
+    with pytest.raises(ValueError, match=r"\[0, 696\)"):
+        palette.colour_name(696, GRID)
 
 
 # --- a grid palette end to end ----------------------------------------------------------------------
@@ -203,3 +204,39 @@ def test_a_grid_world_replays_a_scene_with_colours_past_the_hue_count():
     obs, _ = world.reset(options={"scene": scene})
     px, py = world_to_pixels(scene.positions[0], world.config.arena_half_width, 32)
     assert np.array_equal(obs["image"][int(py), int(px)], palette.palette_rgb(GRID)[301])
+
+
+# --- the test split ---------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("mode", palette.MODES)
+def test_the_three_splits_are_disjoint_and_the_test_colours_as_far_from_training_as_validation(mode):
+    """Train, validation and test colours share no index and no RGB colour; test colours are of the
+    held-out hues, so as far in hue from every training colour as the validation colours (7.5 deg in the
+    hues palette, 10 in the grid), and at the documented RGB distances (module docstring)."""
+    cfg = PaletteConfig(mode=mode)
+    rgb = palette.palette_rgb(cfg)
+    train, val, test = (palette.split_colours(s, cfg) for s in palette.SPLITS)
+    assert len(test) == (36 if mode == "hues" else 48) and (mode == "hues" or len(test) >= 36)
+    assert not (set(train) & set(val) or set(train) & set(test) or set(val) & set(test))
+    assert not ({tuple(c) for c in rgb[test]} & {tuple(c) for c in rgb[np.concatenate([train, val])]})
+    hue = lambda a, b: palette.hue_distance_deg(a[:, None], b[None], cfg).min()
+    assert hue(test, train) == hue(val, train) == (7.5 if mode == "hues" else 10)
+    assert set(palette.colour_hue(test, cfg).tolist()) == set(palette.colour_hue(val, cfg).tolist())
+    documented = {"hues": (51.4, 51.0), "grid": (26.9, 27.7)}[mode]
+    assert rgb_distances(rgb[test], rgb[train]).min() == pytest.approx(documented[0], abs=0.05)
+    assert rgb_distances(rgb[test], rgb[val]).min() == pytest.approx(documented[1], abs=0.05)
+    # a wrong split would fail: the validation colours are nearer the training colours than that
+    assert rgb_distances(rgb[val], rgb[train]).min() < documented[0]
+
+
+def test_a_test_scene_draws_its_distractors_from_the_test_colours():
+    rng = np.random.default_rng(0)
+    test = set(palette.split_colours("test", GRID).tolist())
+    for target in sorted(test)[::5]:
+        colours = palette.sample_scene_colours(target, 3, "test", rng, GRID)
+        assert set(colours.tolist()) <= test
+        assert palette.hue_distance_deg(colours[:, None], colours[None], GRID)[np.triu_indices(3, 1)].min() >= 60
+    with pytest.raises(ValueError, match="is not a 'test' colour"):
+        palette.sample_scene_colours(0, 3, "test", rng, GRID)
+    with pytest.raises(ValueError, match="test_levels"):
+        PaletteConfig(mode="grid", test_levels=((1.0, 1.0),))     # a validation colour's levels

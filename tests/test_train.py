@@ -22,9 +22,10 @@ from test_checkpoint import _set, rewrite
 
 
 @pytest.fixture
-def tiny(tiny_datasets):
-    train_path, heldout_path = tiny_datasets
-    return dataclasses.replace(config.PROFILES["smoke"], train_data=train_path, heldout_data=heldout_path)
+def tiny(tiny_split_datasets):
+    paths = tiny_split_datasets
+    return dataclasses.replace(config.PROFILES["smoke"], train_data=paths["train"], validation_data=paths["validation"],
+                               test_data=paths["test"])
 
 
 def _same(p, q):
@@ -139,7 +140,7 @@ def test_learnt_step_sizes_are_meta_trained_checkpointed_and_used_at_meta_test(t
     assert all(not np.allclose(v, 0.1) for v in steps.values())              # Adam moved them
     assert _same(checkpoint.load(tmp_path / "run" / "checkpoint.npz")["params"], params)
     # meta-test adapts with the learnt sizes, not with alpha: zero sizes leave the policy as it is
-    demo = imitation.prepare_demos(*(datasets.load(cfg.heldout_data)[k][0, 0] for k in ("images", "states", "actions")), 0.5)
+    demo = imitation.prepare_demos(*(datasets.load(cfg.validation_data)[k][0, 0] for k in ("images", "states", "actions")), 0.5)
     frozen = {**params, **{k: np.zeros_like(v) for k, v in steps.items()}}
     adapted = imitation.adapt(frozen, demo, cfg.alpha, 1, only=INNER_PARAMS[cfg.inner_params])
     assert _same(adapted, {k: v for k, v in params.items() if k not in steps})
@@ -238,25 +239,25 @@ def test_wilson_interval_against_known_values():
 def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, capsys):
     run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
     out = tmp_path / "eval.json"
-    results = evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--heldout", tiny.heldout_data,
+    results = evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--validation", tiny.validation_data,
                              "--train", "", "--trials", "3", "--json", str(out), "--unadapted"])
-    r = results["heldout"]
+    r = results["validation"]
     assert r["trials"] == 2 * 3 and 0 <= r["successes"] <= 6
     assert r["ci95"][0] <= r["rate"] <= r["ci95"][1]
     assert sum(r["failures"].values()) == r["trials"] - r["successes"]   # every failure gets a kind
     printed = capsys.readouterr().out
-    assert "heldout colours: one-shot success" in printed
-    by_colour = next(line for line in printed.splitlines() if line.startswith("heldout colours, by colour: "))
+    assert "validation colours: one-shot success" in printed
+    by_colour = next(line for line in printed.splitlines() if line.startswith("validation colours, by colour: "))
     counts = [item.split()[-1].split("/") for item in by_colour.split(": ", 1)[1].split("; ")]
     assert len(counts) == 2 and all(t == "3" for _, t in counts)            # 2 colours, 3 trials each
     assert sum(int(s) for s, _ in counts) == r["successes"]
     with open(out) as f:
         written = json.load(f)
-    assert written["heldout"]["trials"] == 6 and written["adaptation_gain"]["pairs"] == 2
-    assert results["heldout_unadapted"]["trials"] == 6
+    assert written["validation"]["trials"] == 6 and written["adaptation_gain"]["pairs"] == 2
+    assert results["validation_unadapted"]["trials"] == 6
     assert results["adaptation_gain"]["pairs"] == 2
     # the trial scenes are not the demos' scenes
-    heldout = datasets.load(tiny.heldout_data)
+    heldout = datasets.load(tiny.validation_data)
     world_seeds = {imitation.trial_seed(0, i, j) for i in range(2) for j in range(3)}
     assert not world_seeds & set(heldout["seeds"].ravel().tolist())
 
@@ -265,20 +266,20 @@ def test_evaluate_command_can_meta_test_with_another_step_size(tiny, tmp_path, c
     # alpha 0 leaves the policy as it is, so its "adapted" trials are the unadapted ones, scene by scene.
     run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
     ckpt = str(tmp_path / "run" / "checkpoint.npz")
-    results = evaluate.main([ckpt, "--heldout", tiny.heldout_data, "--train", "", "--trials", "3",
+    results = evaluate.main([ckpt, "--validation", tiny.validation_data, "--train", "", "--trials", "3",
                              "--unadapted", "--alpha", "0", "--inner-steps", "2"])
-    assert results["heldout"]["per_colour"] == results["heldout_unadapted"]["per_colour"]
+    assert results["validation"]["per_colour"] == results["validation_unadapted"]["per_colour"]
     assert results["adaptation_gain"]["before"] == pytest.approx(results["adaptation_gain"]["after"], rel=1e-6)
-    trained = evaluate.main([ckpt, "--heldout", tiny.heldout_data, "--train", "", "--trials", "1"])
+    trained = evaluate.main([ckpt, "--validation", tiny.validation_data, "--train", "", "--trials", "1"])
     assert trained["adaptation_gain"]["after"] != trained["adaptation_gain"]["before"]  # the flag did it
     with pytest.raises(SystemExit):
-        evaluate.main([ckpt, "--heldout", tiny.heldout_data, "--train", "", "--alpha", "-1"])
+        evaluate.main([ckpt, "--validation", tiny.validation_data, "--train", "", "--alpha", "-1"])
     assert "alpha" in capsys.readouterr().err
 
 
 def test_adaptation_gain_scores_a_second_demo_before_and_after_adapting(tiny, tmp_path):
     params = run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
-    heldout = datasets.load(tiny.heldout_data)                       # 2 colours x 2 demos: 2 pairs
+    heldout = datasets.load(tiny.validation_data)                       # 2 colours x 2 demos: 2 pairs
     g = scoring.adaptation_gain(params, heldout, lambda demo: imitation.adapt(params, demo, 0.01, 2))
     demos = imitation.prepare_demos(heldout["images"], heldout["states"], heldout["actions"],
                                     heldout["metadata"]["world"]["arm"]["max_torque"])
@@ -298,9 +299,9 @@ def test_demo_adapts_a_checkpoint_and_reports_counts(tiny, tmp_path, capsys):
     run_folder.train(dataclasses.replace(tiny, iterations=1), tmp_path / "run", progress=False)
     result = demo.main(["--checkpoint", str(tmp_path / "run" / "checkpoint.npz"), "--trials", "1",
                         "--out", str(tmp_path / "out")])
-    assert result["trials"] == 12 and 0 <= result["successes"] <= 12
+    assert result["trials"] == 36 and 0 <= result["successes"] <= 36          # the 36 test colours, 1 trial each
     out = capsys.readouterr().out
-    assert "one-shot success on held-out colours" in out and "expert success: 12/12" in out
+    assert "one-shot success on test colours" in out and "expert success: 36/36" in out
     assert (tmp_path / "out" / "one_shot.png").exists()
     # the animation: one frame per time step, the demo and the policy before and after adapting side by side
     from PIL import Image
@@ -355,3 +356,19 @@ def test_the_shipped_policy_is_the_default_profiles_run():
     assert ckpt["iteration"] == config.PROFILES["default"].iterations
     assert ckpt["ema"] is not None and set(ckpt["ema"]) == set(ckpt["params"])   # the profile keeps an average
     assert os.path.getsize(PRETRAINED) < 2_000_000
+
+
+def test_evaluate_scores_the_test_colours_on_test_scenes_and_names_the_split(tiny, tmp_path, capsys):
+    """`--split test` scores the checkpoint's own test set (the path its run recorded), on the test
+    split's scene seeds: none of them a validation scene's or a dataset's."""
+    run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
+    results = evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--split", "test", "--train", "", "--trials", "2"])
+    assert set(results) == {"test", "adaptation_gain"} and results["test"]["trials"] == 2 * 2
+    assert "test colours: one-shot success" in capsys.readouterr().out
+    test = datasets.load(tiny.test_data)
+    scenes = {imitation.trial_seed(0, i, j, "test") for i in range(2) for j in range(2)}
+    assert not scenes & {imitation.trial_seed(0, i, j, "validation") for i in range(100) for j in range(100)}
+    assert not scenes & set(test["seeds"].ravel().tolist())
+    with pytest.raises(datasets.DatasetError, match="holds validation colours, not test colours"):
+        evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--split", "test", "--test", tiny.validation_data,
+                       "--train", ""])

@@ -180,7 +180,7 @@ def test_episode_marks_put_the_hand_on_the_arms_end_in_every_frame():
 def test_the_demo_pictures_mark_target_base_and_hand_in_every_frame():
     """The demo's film strip and GIF against the same pictures unmarked: they differ only by white marks,
     a ring, a square and a circle's worth (over 60 pixels) in every tile."""
-    cfg = WorldConfig(split="heldout")
+    cfg = WorldConfig(split="validation")
     recorded = controller.demonstrate(ReachWorld(cfg), seed=0, options={"target_colour": 4})   # hue 30 deg
     strip = np.asarray(demo.film_strip(cfg, [(recorded, None)]))
     bare = np.asarray(viz.filmstrip([recorded["images"]], labels=["hue 30 deg\ndemonstration"],

@@ -76,10 +76,10 @@ def test_scenes_are_reachable_separated_and_distinguishable():
 
 
 def test_palette_splits_never_overlap():
-    train, held = palette.split_colours("train"), palette.split_colours("heldout")
-    assert not set(train) & set(held)
-    assert len(train) + len(held) == palette.PaletteConfig().size
-    assert len(np.unique(palette.palette_rgb(), axis=0)) == palette.PaletteConfig().size
+    train, held, test = (palette.split_colours(s) for s in ("train", "validation", "test"))
+    assert not set(train) & set(held) and not set(test) & (set(train) | set(held))
+    assert len(train) + len(held) + len(test) == palette.n_colours() == 84
+    assert len(np.unique(palette.palette_rgb(), axis=0)) == palette.n_colours()
 
 
 def test_success_criterion_uses_the_final_fifth():
@@ -129,20 +129,20 @@ def test_bad_input_is_rejected_with_a_message_naming_the_fix():
         world.step(np.zeros(3))
     with pytest.raises(ValueError, match="NaN"):
         world.step(np.array([np.nan, 0.0]))
-    held = int(palette.split_colours("heldout")[0])
+    held = int(palette.split_colours("validation")[0])
     with pytest.raises(ValueError, match="not a 'train' colour"):
         world.reset(seed=0, options={"target_colour": held})
     with pytest.raises(ValueError, match="unknown colour split"):
-        WorldConfig(split="test")
+        WorldConfig(split="heldout")                 # what the validation split was called; now unknown
     with pytest.raises(ValueError, match="out of range"):
         world.reset(options={"scene": Scene(colours=np.array([1, 2]), positions=np.zeros((2, 2)), target=2)})
     with pytest.raises(ValueError, match="min_separation"):
         WorldConfig(min_separation=0.09)
 
 
-def test_heldout_world_uses_only_heldout_colours():
-    world = ReachWorld(dataclasses.replace(WorldConfig(), split="heldout"))
-    held = set(palette.split_colours("heldout").tolist())
+def test_heldout_world_uses_only_validation_colours():
+    world = ReachWorld(dataclasses.replace(WorldConfig(), split="validation"))
+    held = set(palette.split_colours("validation").tolist())
     for seed in range(20):
         _, info = world.reset(seed=seed)
         assert set(info["scene"].colours.tolist()) <= held

@@ -17,7 +17,7 @@ def bench_expert(scenes=500, seed=0):
     """iLQG plan times and expert success over `scenes` random scenes (both colour splits)."""
     plan_s, iterations, successes = [], [], 0
     for i in tqdm(range(scenes), desc="expert", unit="scene"):
-        world = ReachWorld(WorldConfig(split="train" if i % 4 else "heldout"))
+        world = ReachWorld(WorldConfig(split="train" if i % 4 else "validation"))
         _, info = world.reset(seed=seed + i)
         t0 = time.perf_counter()
         result = controller.plan(world.state, info["target_position"], world.config.arm, world.config.horizon)

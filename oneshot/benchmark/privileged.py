@@ -66,9 +66,9 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
         im, st = inputs(images[ti, ki].reshape(-1, *images.shape[-3:]), states[ti, ki].reshape(-1, 6),
                         np.repeat(target[ti, ki], T, 0), np.repeat(colours[ti], T, 0))
         params, adam = optim.adam_step(params, g(params, im, st, actions[ti, ki].reshape(-1, 2)), adam, lr)
-    world = ReachWorld(dataclasses.replace(world_cfg, split="heldout"))
+    world = ReachWorld(dataclasses.replace(world_cfg, split="validation"))
     wins = sum(imitation.rollout(policy, world, imitation.trial_seed(0, 0, j))["success"]
                for j in tqdm(range(trials), desc="held-out trials"))
     return {"given": given, "feature_points": feature_points, "steps": steps, "batch_demos": batch,
-            "seed": seed, "heldout_trials": trials, "heldout_success": wins / trials,
+            "seed": seed, "validation_trials": trials, "validation_success": wins / trials,
             "ci95": wilson_interval(wins, trials)}

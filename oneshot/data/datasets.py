@@ -28,6 +28,7 @@ import numpy as np
 
 from oneshot.data import npz
 from oneshot.tools import files
+from oneshot.world import palette
 from oneshot.world.arm import ArmConfig
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
@@ -223,6 +224,9 @@ def _read_metadata(path, archive):
     if meta.get("format_version") != FORMAT_VERSION:
         raise DatasetError(f"{path!r} has format version {meta.get('format_version')}, this oneshot reads "
                            f"version {FORMAT_VERSION}; {FIX}")
+    for holder in (meta, meta.get("world")):   # older datasets call the validation split "heldout"
+        if isinstance(holder, dict) and holder.get("split") in palette.LEGACY_SPLITS:
+            holder["split"] = palette.LEGACY_SPLITS[holder["split"]]
     return meta
 
 

@@ -31,7 +31,9 @@ import signal
 import sys
 
 from oneshot.experiments.fig2 import LABELS, LINES, PROFILES, ensure_data, plan, run_context, run_one
-from oneshot.experiments.summary import PLOTS, plot, summarise, write_summary
+from oneshot import methods
+from oneshot.experiments.rows import read_rows
+from oneshot.experiments.summary import PLOTS, compare, plot, summarise, write_summary
 from oneshot.experiments.sweep import SweepLocked, sweep
 from oneshot.tools import cli
 
@@ -85,6 +87,9 @@ def main(argv=None):
                    help="only these of the profile's seeds (default: all of them); their summary and figure "
                         "are summary_seeds<S>.json and fig2_seeds<S>.png, beside the whole profile's")
     f.add_argument("--no-progress", action="store_true", help="no progress bar")
+    f.add_argument("--compare", default=None, metavar="RESULTS",
+                   help="after the sweep, compare its results point by point with another results folder (e.g. "
+                        "the committed results/fig2_<profile> of a clone): does each point agree within its interval?")
     where = f.add_mutually_exclusive_group()
     where.add_argument("--workers", type=cli.positive_int, default=None,
                        help="runs at a time in a process pool (default 2; at most the cores)")
@@ -138,7 +143,9 @@ def main(argv=None):
         print(f"{len(rows)} of {len(runs)} runs finished ({os.path.join(out, 'runs.csv')}); run the same "
               f"command again to finish the others: no summary or figure until then")
         return 1
-    summary = summarise(rows, cfg, "python -m oneshot.experiments " + shlex.join(argv))
+    adapts = lambda line: methods.of(LINES[line]).adapts
+    pairs = [(a, b) for a in cfg.methods if adapts(a) for b in cfg.methods if not adapts(b)]
+    summary = summarise(rows, cfg, "python -m oneshot.experiments " + shlex.join(argv), pairs)
     write_summary(summary, os.path.join(out, f"summary{part}.json"))
     print(f"{len(rows)} of {len(runs)} runs finished: {os.path.join(out, 'runs.csv')}, "
           f"{os.path.join(out, f'summary{part}.json')}")
@@ -148,7 +155,29 @@ def main(argv=None):
         plot(summary, os.path.join(out, f"fig2{part}.png"), {m: LABELS.get(m, m) for m in LINES},
              title=f"Figure 2 ({cfg.name} profile, {seeds})")
         print(f"figure: {os.path.join(out, f'fig2{part}.png')}")
+    if args.compare:
+        return _compare(rows, args.compare)
     return 0
+
+
+def _compare(rows, folder):
+    """Print, point by point, whether a sweep's rows agree with the results in `folder` within their
+    interval (`summary.compare`); 0 if every shared point agrees, 1 if any does not, 2 if none is shared."""
+    theirs = read_rows(os.path.join(folder, "runs.csv"))
+    table = compare(rows, theirs)
+    if not table:
+        print(f"error: {folder} holds no point of this sweep (no runs.csv rows of its lines and sizes)", file=sys.stderr)
+        return 2
+    pct = lambda x: f"{100 * x:5.1f}"
+    print(f"\ncompared with {folder} (95% interval of the difference, seeds resampled, colours paired):")
+    print(f"{'line':12s} {'size':>5s} {'here %':>7s} {'there %':>8s} {'difference':>24s}  verdict")
+    for p in table:
+        print(f"{p['method']:12s} {p['size']:5d} {pct(p['mine']):>7s} {pct(p['theirs']):>8s} "
+              f"{pct(p['difference'])} [{pct(p['ci_low'])}, {pct(p['ci_high'])}]  "
+              f"{'agrees' if p['agree'] else 'DIFFERS'}")
+    differ = sum(not p["agree"] for p in table)
+    print(f"{len(table) - differ} of {len(table)} points agree" + (f"; {differ} differ" if differ else ""))
+    return 1 if differ else 0
 
 
 if __name__ == "__main__":

@@ -32,7 +32,8 @@ from oneshot.data import collection, datasets
 from oneshot.maml import imitation
 from oneshot import methods
 from oneshot.tools import files, host
-from oneshot.training import checkpoint, run_folder
+from oneshot.training import checkpoint, run_data, run_folder
+from oneshot.world import palette
 from oneshot.training.config import PROFILES as PROFILES_TRAIN
 from oneshot.expert.controller import ExpertConfig
 from oneshot.world.palette import PaletteConfig
@@ -80,18 +81,21 @@ LABELS = {"mil-conv0": "MIL, first convolution adapts", "mil-all": "MIL, every p
 
 @dataclass(frozen=True)
 class SweepConfig:
-    """A Figure 2 sweep: every method x size x seed. The defaults are the "paper" profile: 5 sizes from
-    192 to 5184 demonstrations (27x), 3 seeds, 10000 meta-iterations per run (the default profile's)."""
+    """A Figure 2 sweep: every line x size x seed, each run scored on the `score` split's colours (the test
+    colours for a figure; the validation colours for a search that chooses). The defaults are the "paper"
+    profile: 5 sizes from 192 to 5184 demonstrations (27x), 3 seeds, 10000 meta-iterations per run."""
     name: str = "paper"
     sizes: tuple = ((24, 8), (36, 12), (72, 12), (144, 16), (324, 16))  # (colours, demos per colour)
     methods: tuple = FIGURE               # lines of LINES
     seeds: tuple = (0, 1, 2)
     iterations: int = 10000                # meta-iterations per run: as long as the shipped policy trains
-    trials: int = 10                       # trials per held-out colour (10 x 12 colours: 120 trials)
+    trials: int = 5                        # trials per scored colour (5 x 48 test colours: 240 trials)
     palette_mode: str = "grid"             # oneshot.world.palette.PaletteConfig(mode=...): enough colours for 324
-    eval_seed: int = 0                     # seed of the held-out trial scenes: the same for every run
+    eval_seed: int = 0                     # seed of the trial scenes: the same scenes for every run
     data: tuple = (324, 16)                # (colours, demos) collected once; every size is its first part
-    heldout: tuple = (12, 10)              # held-out (colours, demos): each trial adapts on one of the demos
+    validation: tuple = (12, 10)           # validation (colours, demos): the random policy's std is chosen there
+    test: tuple = (48, 10)                 # test (colours, demos): each trial adapts on one of the demos
+    score: str = "test"                    # the split runs are scored on: "test", or "validation" to choose
 
     def __post_init__(self):
         if not self.sizes or len({c * d for c, d in self.sizes}) != len(self.sizes):
@@ -102,20 +106,28 @@ class SweepConfig:
         if not self.seeds or len(set(self.seeds)) != len(self.seeds):
             raise ValueError(f"seeds must be distinct; got {self.seeds}")
         if self.trials < 1:
-            raise ValueError(f"trials (per held-out colour) must be >= 1; got {self.trials}")
+            raise ValueError(f"trials (per scored colour) must be >= 1; got {self.trials}")
+        if self.score not in ("validation", "test"):
+            raise ValueError(f"score must be 'validation' or 'test'; got {self.score!r}")
         for c, d in self.sizes:                # checks the pair's types and signs
             RunSpec(self.methods[0], c, d, self.seeds[0], self.iterations)
             if c > self.data[0] or d > self.data[1]:
                 raise ValueError(f"size ({c}, {d}) is larger than the collected data {self.data}")
+        palette_cfg = PaletteConfig(mode=self.palette_mode)
+        for split, (c, d) in (("train", self.data), ("validation", self.validation), ("test", self.test)):
+            available = len(palette.split_colours(split, palette_cfg))
+            if not 1 <= c <= available or d < 2:
+                raise ValueError(f"{split} data of {c} colours x {d} demos: the {self.palette_mode} palette has "
+                                 f"{available} {split} colours; need 1..{available} colours and >= 2 demos")
 
 
 PROFILES = {
     "quick": SweepConfig(name="quick", sizes=((24, 8), (72, 12), (324, 16)), seeds=(0,), iterations=3000),
     "paper": SweepConfig(),
-    "search": SweepConfig(name="search", sizes=((72, 12),), seeds=(0,), iterations=3000,
+    "search": SweepConfig(name="search", sizes=((72, 12),), seeds=(0,), iterations=3000, score="validation",
                           methods=tuple(m for m in LINES if m != "random")),
     "tiny": SweepConfig(name="tiny", sizes=((3, 3), (3, 4)), seeds=(0, 1), iterations=2, trials=2,  # tests
-                        data=(3, 4), heldout=(2, 2)),
+                        data=(3, 4), validation=(2, 2), test=(2, 2)),
 }
 
 
@@ -126,58 +138,66 @@ def plan(cfg):
     return sorted(runs, key=lambda r: (r.seed, r.size, cfg.methods.index(r.method)))
 
 
+SPLIT_SEEDS = {"train": 0, "validation": 1, "test": 2}   # collect seeds, as every profile's (run_data.SEEDS)
+
+
 def data_paths(cfg, data_dir):
-    """(meta-training, held-out) dataset paths of a sweep: named by what they hold, so profiles that
-    collect the same data share it."""
-    (c, d), (hc, hd) = cfg.data, cfg.heldout
-    return (os.path.join(os.path.abspath(data_dir), f"{cfg.palette_mode}_train_c{c}_d{d}_s0.npz"),
-            os.path.join(os.path.abspath(data_dir), f"{cfg.palette_mode}_heldout_c{hc}_d{hd}_s1.npz"))
+    """{split: dataset path} of a sweep: named by what they hold, so profiles that collect the same data
+    share it."""
+    folder = os.path.abspath(data_dir)
+    return {split: os.path.join(folder, f"{cfg.palette_mode}_{split}_c{c}_d{d}_s{SPLIT_SEEDS[split]}.npz")
+            for split, (c, d) in (("train", cfg.data), ("validation", cfg.validation), ("test", cfg.test))}
 
 
 def ensure_data(cfg, data_dir, workers=None, progress=True):
-    """Collect the sweep's two datasets if missing (all cores; seeds 0 and 1, DART noise 0.1 N m as
-    the default profile's): the first `cfg.data` colours x demos of the palette's meta-training split,
-    and `cfg.heldout` of its held-out split. Every run then trains on the first part of the former."""
+    """Collect the sweep's datasets if missing (all cores; DART noise 0.1 N m as the default profile's):
+    the first `cfg.data` colours x demos of the palette's meta-training split, every run training on the
+    first part of it; `cfg.validation` of its validation colours and `cfg.test` of its test colours."""
     world_cfg = WorldConfig(palette=PaletteConfig(mode=cfg.palette_mode))
     expert_cfg = ExpertConfig(action_noise=PROFILES_TRAIN["default"].demo_noise)
-    for path, (c, d), split, seed in zip(data_paths(cfg, data_dir), (cfg.data, cfg.heldout),
-                                         ("train", "heldout"), (0, 1)):
+    for split, path in data_paths(cfg, data_dir).items():
+        c, d = {"train": cfg.data, "validation": cfg.validation, "test": cfg.test}[split]
         if not os.path.exists(path):
             print(f"collecting {path}: {c} {split} colours x {d} demos", file=sys.stderr)
-            datasets.save(collection.collect(c, d, split, seed, workers, world_cfg, expert_cfg, progress), path)
+            data = collection.collect(c, d, split, SPLIT_SEEDS[split], workers, world_cfg, expert_cfg, progress)
+            datasets.save(data, path)
 
 
 def run_context(cfg, data_dir="data/fig2"):
     """The small picklable dict every run_fn receives besides its spec and folder: what all runs of the
     sweep share. Paths are absolute (workers may start elsewhere)."""
-    train_data, heldout_data = data_paths(cfg, data_dir)
+    paths = data_paths(cfg, data_dir)
     return {"profile": cfg.name, "data_dir": os.path.abspath(data_dir), "trials": cfg.trials,
-            "palette_mode": cfg.palette_mode, "eval_seed": cfg.eval_seed, "train_data": train_data,
-            "heldout_data": heldout_data}
+            "palette_mode": cfg.palette_mode, "eval_seed": cfg.eval_seed, "score": cfg.score,
+            "train_data": paths["train"], "validation_data": paths["validation"], "test_data": paths["test"],
+            "demos": {"train": cfg.data[1], "validation": cfg.validation[1], "test": cfg.test[1]}}
 
 
 # ----------------------------------------------------------------------------------------------------
-# One run: train one method on one dataset size with one seed, then score it on the held-out trials
+# One run: train one method on one dataset size with one seed, then score it on the scored split
 # ----------------------------------------------------------------------------------------------------
 
 def run_config(spec, context):
-    """The TrainConfig of one run: its method's configuration on the first `spec.colours` colours x
+    """The TrainConfig of one run: its line's configuration on the first `spec.colours` colours x
     `spec.demos` demos of the sweep's meta-training data, one process (the sweep runs several)."""
+    demos = context["demos"]
     return dataclasses.replace(
         LINES[spec.method], **context.get("overrides", {}).get(spec.method, {}),
-        train_data=context["train_data"], heldout_data=context["heldout_data"], palette=context["palette_mode"],
-        tasks=spec.colours, demos=spec.demos, seed=spec.seed, iterations=spec.iterations, shards=1,
-        eval_every=0, checkpoint_every=250, log_every=50)
+        train_data=context["train_data"], validation_data=context["validation_data"], test_data=context["test_data"],
+        train_demos=demos["train"], validation_demos=demos["validation"], test_demos=demos["test"],
+        palette=context["palette_mode"], tasks=spec.colours, demos=spec.demos, seed=spec.seed,
+        iterations=spec.iterations, shards=1, eval_every=0, checkpoint_every=250, log_every=50)
 
 
 def run_one(spec, run_dir, context):
-    """Train (or resume) one run in run_dir and score it on context["trials"] trials per held-out
-    colour (`imitation.one_shot_success`, trial seed 0: the same scenes for every run).
-    Returns {"wall_seconds", "successes", "trials"} and, for the `notes` column, the successes per
-    held-out colour, for MIL the unadapted policy's successes in the same scenes, and for the random
-    policy the torque std it picked. wall_seconds: the meta-training time the checkpoint records (every
-    sitting, a killed one too) plus the scoring; for a run begun before checkpoints recorded time, only
-    this sitting's (notes: "wall": "this sitting")."""
+    """Train (or resume) one run in run_dir and score it on context["trials"] trials per colour of the
+    scored split (`imitation.one_shot_success` with the sweep's eval seed: the same scenes for every run).
+    Returns {"wall_seconds", "successes", "trials"} and, for the `notes` column, the successes per scored
+    colour, for MIL the unadapted policy's successes in the same scenes, and what the method records of
+    itself (the random policy: the torque std it chose on the validation colours; its torques are drawn
+    from the run's own seed). wall_seconds: the meta-training time the checkpoint records (every sitting,
+    a killed one too) plus the scoring; for a run begun before checkpoints recorded time, only this
+    sitting's (notes: "wall": "this sitting")."""
     host.tune_malloc()
     host.blas_threads(1)                                   # several runs share the cores
     cfg = run_config(spec, context)
@@ -186,12 +206,12 @@ def run_one(spec, run_dir, context):
     run_folder.train(cfg, run_dir, resume=resume, progress=False)
     ckpt = checkpoint.load(os.path.join(run_dir, "checkpoint.npz"))
     t_score = time.perf_counter()
-    heldout = datasets.load(context["heldout_data"])
+    scored = run_data.load(cfg, context["score"])
     params = checkpoint.policy_params(ckpt)
     method = methods.of(cfg)
-    score = lambda condition: imitation.one_shot_success(condition, heldout, context["trials"], context["eval_seed"],
+    score = lambda condition: imitation.one_shot_success(condition, scored, context["trials"], context["eval_seed"],
                                                          progress=False)
-    r = score(method.conditioner(params, context["eval_seed"]))
+    r = score(method.conditioner(params, seed=[spec.seed, context["eval_seed"]]))
     notes = {"per_colour": {str(c): round(rate * context["trials"]) for c, rate in r["per_colour"].items()}}
     if method.adapts:                                                # the same scenes, without eq. (1)
         notes["unadapted_successes"] = score(method.unadapted(params))["successes"]

@@ -7,7 +7,7 @@ import dataclasses
 import json
 
 from oneshot.tools.files import atomic_write
-from oneshot.training.scoring import wilson_interval
+from oneshot.experiments import stats
 
 try:
     from matplotlib.figure import Figure       # pip install ".[plots]": the figure (no pyplot, no global state)
@@ -16,40 +16,71 @@ except ImportError:
 PLOTS = Figure is not None                     # can `plot` draw here?
 
 
-def summarise(rows, config=None, command=None):
-    """Per method and size: the runs (seeds), their mean success rate, the 95% Wilson interval of the
-    pooled successes / trials, and the lowest and highest rate over seeds.
-
-    -> {"methods": {method: [{"size", "colours", "demos_per_colour", "runs", "seeds", "successes",
-    "trials", "mean_rate", "ci_low", "ci_high", "min_rate", "max_rate"}, ... by size]}, "runs": n,
-    "config": asdict(config), "command": command} (the last two when given).
-    """
+def _groups(rows):
+    """{(method, size): [rows]}, each group one configuration with distinct seeds (else ValueError)."""
     groups = {}
     for row in rows:
         groups.setdefault((row["method"], row["size"]), []).append(row)
-    methods = {}
-    for (method, size), group in sorted(groups.items()):
+    for (method, size), group in groups.items():
         shapes = {(r["colours"], r["demos_per_colour"], r["iterations"]) for r in group}
         if len(shapes) > 1:
             raise ValueError(f"{method} at size {size} mixes runs of (colours, demos, iterations) {sorted(shapes)}; "
                              f"summarise one configuration per size")
-        seeds = sorted(r["seed"] for r in group)
+        seeds = [r["seed"] for r in group]
         if len(set(seeds)) != len(seeds):
-            raise ValueError(f"{method} at size {size} has seed(s) repeated: {seeds}")
-        successes, trials = sum(r["successes"] for r in group), sum(r["trials"] for r in group)
+            raise ValueError(f"{method} at size {size} has seed(s) repeated: {sorted(seeds)}")
+    return groups
+
+
+def summarise(rows, config=None, command=None, pairs=()):
+    """Per method and size: the runs (seeds), their mean success rate with its 95% interval over seeds
+    and scored colours (`stats.interval`), the pooled successes / trials, and the lowest and highest
+    rate over seeds; and for each (a, b) of `pairs`, at each size both have, the difference a - b with
+    its interval paired over the colours (`stats.difference_interval`).
+
+    -> {"methods": {method: [{"size", "colours", "demos_per_colour", "runs", "seeds", "successes",
+    "trials", "mean_rate", "ci_low", "ci_high", "min_rate", "max_rate"}, ... by size]}, "differences":
+    [{"a", "b", "size", "difference", "ci_low", "ci_high"}], "interval": stats.METHOD, "runs": n,
+    "config": asdict(config), "command": command} (the last two when given).
+    """
+    groups = _groups(rows)
+    methods = {}
+    for (method, size), group in sorted(groups.items()):
+        group = sorted(group, key=lambda r: r["seed"])
+        mean, lo, hi = stats.interval(*stats.counts(group))
         rates = [r["successes"] / r["trials"] for r in group]
-        lo, hi = wilson_interval(successes, trials)
         methods.setdefault(method, []).append({
             "size": size, "colours": group[0]["colours"], "demos_per_colour": group[0]["demos_per_colour"],
-            "runs": len(group), "seeds": seeds, "successes": successes, "trials": trials,
-            "mean_rate": sum(rates) / len(rates), "ci_low": lo, "ci_high": hi,
+            "runs": len(group), "seeds": [r["seed"] for r in group], "successes": sum(r["successes"] for r in group),
+            "trials": sum(r["trials"] for r in group), "mean_rate": mean, "ci_low": lo, "ci_high": hi,
             "min_rate": min(rates), "max_rate": max(rates)})
-    summary = {"methods": methods, "runs": len(rows)}
+    differences = []
+    for a, b in pairs:
+        for size in sorted({s for m, s in groups if m == a} & {s for m, s in groups if m == b}):
+            d, lo, hi = stats.difference_interval(stats.counts(groups[a, size]), stats.counts(groups[b, size]))
+            differences.append({"a": a, "b": b, "size": size, "difference": d, "ci_low": lo, "ci_high": hi})
+    summary = {"methods": methods, "differences": differences, "interval": stats.METHOD, "runs": len(rows)}
     if config is not None:
         summary["config"] = dataclasses.asdict(config)
     if command is not None:
         summary["command"] = command
     return summary
+
+
+def compare(mine, theirs):
+    """A reproduction check: for every point (method, size) in both sets of rows, the difference of mean
+    rates mine - theirs with its interval (seeds of each resampled, colours paired) and whether it holds 0.
+    -> [{"method", "size", "mine", "theirs", "difference", "ci_low", "ci_high", "agree"}]."""
+    a, b = _groups(mine), _groups(theirs)
+    out = []
+    for key in sorted(set(a) & set(b)):
+        ours, others = stats.counts(a[key]), stats.counts(b[key])
+        if ours[0].shape[1] != others[0].shape[1]:              # scored on other colours: compare totals only
+            ours, others = (tuple(x.sum(1, keepdims=True) for x in p) for p in (ours, others))
+        d, lo, hi = stats.difference_interval(ours, others)
+        out.append({"method": key[0], "size": key[1], "mine": stats.mean_rate(*ours), "theirs": stats.mean_rate(*others),
+                    "difference": d, "ci_low": lo, "ci_high": hi, "agree": lo <= 0 <= hi})
+    return out
 
 
 def write_summary(summary, path):
@@ -60,8 +91,8 @@ def write_summary(summary, path):
 
 def plot(summary, path, labels, title="One-shot imitation of new colours vs. meta-training data"):
     """Figure 2 as a PNG at `path` (atomically): x the meta-training demonstrations (log scale), y the
-    one-shot success on held-out colours (%), per method the mean over seeds with the 95% interval of
-    the pooled trials as error bars. labels: {method: legend label}, in legend order. Needs matplotlib
+    one-shot success on the scored colours (%), per method the mean over seeds with the 95% interval over
+    seeds and colours as error bars (`stats`; the figure's footnote says so). labels: {method: legend label}, in legend order. Needs matplotlib
     (pip install ".[plots]")."""
     if Figure is None:
         raise RuntimeError('the plot needs matplotlib: pip install ".[plots]"')
@@ -81,7 +112,9 @@ def plot(summary, path, labels, title="One-shot imitation of new colours vs. met
     ax.minorticks_off()
     ax.set_ylim(0, 100)
     ax.set_xlabel("meta-training demonstrations (colours x demos per colour)")
-    ax.set_ylabel("one-shot success, held-out colours (%)")
+    split = summary.get("config", {}).get("score", "held-out")
+    ax.set_ylabel(f"one-shot success, {split} colours (%)")
+    fig.text(0.01, 0.005, "error bars: " + summary.get("interval", "95% intervals"), fontsize=5, color="0.35")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")

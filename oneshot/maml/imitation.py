@@ -8,6 +8,8 @@ run the adapted policy in the world, in a new scene (new positions) with the sam
 Units: the network sees images in [0, 1], states divided by STATE_SCALE and predicts torques divided
 by the torque bound, so every input and output is of order one.
 """
+import numbers
+
 import autograd.numpy as anp
 import numpy as np
 from tqdm import tqdm
@@ -110,15 +112,32 @@ def one_shot_trial(params, demo, world, seed, target_colour, alpha=0.001, steps=
 
 
 TRIAL_SEED_OFFSET = 1_000_003   # trial scenes never reuse a dataset's scene seeds (those are 63-bit hashes)
+SPLIT_TAGS = {"train": 1, "validation": 2, "test": 3}
 
 
-def trial_seed(seed, task, trial):
-    """The scene seed of trial `trial` of task `task` at meta-test: the one function that makes them
-    (evaluate, demo, training's held-out checks). Distinct for task < 100 and trial < 1000."""
-    if not (0 <= task < 100 and 0 <= trial < 1000 and seed >= 0):
-        raise ValueError(f"trial seeds are distinct for 0 <= task < 100, 0 <= trial < 1000 and seed >= 0; "
-                         f"got seed={seed}, task={task}, trial={trial}")
-    return TRIAL_SEED_OFFSET + seed * 100_000 + task * 1000 + trial
+def trial_seed(seed, task, trial, split="validation"):
+    """The scene seed of trial `trial` of task `task` at meta-test, scored on colours of `split`: the one
+    function that makes them (evaluate, demo, training's validation checks, the experiments).
+
+    Distinct for every (split, seed, task, trial) of non-negative ints, and from every dataset's scene
+    seeds. The test split's seeds are its own, so that no choice made on validation scenes has seen a
+    test scene; training and validation colours keep the seeds every number before the test split was
+    measured with (TRIAL_SEED_OFFSET + seed 100000 + task 1000 + trial, for task < 100 and trial < 1000).
+    """
+    for name, n in (("seed", seed), ("task", task), ("trial", trial)):
+        if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 0:
+            raise ValueError(f"trial seeds need a non-negative int {name}; got {n!r}")
+    if split not in SPLIT_TAGS:
+        raise ValueError(f"trial seeds are for the splits {', '.join(SPLIT_TAGS)}; got {split!r}")
+    if split != "test" and task < 100 and trial < 1000 and seed < 2 ** 40:
+        return TRIAL_SEED_OFFSET + seed * 100_000 + task * 1000 + trial
+    # Above 2^64 (beyond the numbers above and every 63-bit dataset seed), an injective pairing.
+    return 2 ** 64 + _pair(SPLIT_TAGS[split], _pair(_pair(int(seed), int(task)), int(trial)))
+
+
+def _pair(a, b):
+    """Cantor's pairing: a different non-negative int for every pair of non-negative ints."""
+    return (a + b) * (a + b + 1) // 2 + b
 
 
 def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=True):
@@ -149,7 +168,7 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
                 colour, won = int(dataset["task_colours"][i]), 0
                 for j in range(trials_per_colour):
                     policy = condition(tuple(a[i, j % k] for a in demos))
-                    trial = rollout(policy, world, trial_seed(seed, i, j), colour)
+                    trial = rollout(policy, world, trial_seed(seed, i, j, meta["split"]), colour)
                     won += trial["success"]
                     if not trial["success"]:
                         closest, _ = closest_object(trial["end_effector"], trial["scene"].positions)

@@ -41,8 +41,13 @@ FIX = "re-train it, or use another checkpoint"
 # Config fields added after the first checkpoints were written: older files lack them, and their
 # defaults are what those runs used. Every other field must be recorded. (A field added to TrainConfig
 # or NetworkConfig goes here, or the shipped policy stops loading: tests/test_train.py says so.)
-ADDED_LATER = {"config": ("method", "lstm_units", "random_stds", "palette", "tasks", "demos"),
+ADDED_LATER = {"config": ("method", "lstm_units", "random_stds", "palette", "tasks", "demos", "test_data",
+                          "test_demos"),
                "network": ("image_channels",)}
+# Config fields renamed since: what older checkpoints call them; and the old default path of the
+# validation colours' dataset (the same data: 12 colours x 10 demos, seed 1), under its new name.
+RENAMED = {"config": {"heldout_data": "validation_data", "heldout_demos": "validation_demos"}, "network": {}}
+RENAMED_PATHS = {"data/heldout.npz": "data/validation.npz"}
 
 
 class CheckpointError(ValueError):
@@ -180,6 +185,8 @@ def _config(path, key, cls, fields):
     """cls(**fields) for a config dict read from JSON (key: "config" or "network"): every field known,
     every field of the first checkpoints present, each of its dataclass's type (lists back to tuples)."""
     defaults = {f.name: f.default for f in dataclasses.fields(cls)}
+    fields = {RENAMED[key].get(name, name): RENAMED_PATHS.get(v, v) if name in RENAMED[key] else v
+              for name, v in fields.items()}
     for name in fields:
         if name not in defaults:
             raise CheckpointError(f"{path!r}: meta {key!r} has an unknown field {name!r}; {FIX}")

@@ -15,9 +15,11 @@ class TrainConfig:
     """Everything a run depends on. The field defaults are MIL's meta-learning settings (3 inner steps
     of alpha = 0.001 on every parameter, the flattened network); PROFILES names the runs we use."""
     train_data: str = "data/train.npz"       # collected if missing: 36 colours x `train_demos`
-    heldout_data: str = "data/heldout.npz"   # collected if missing: 12 colours x `heldout_demos`
+    validation_data: str = "data/validation.npz"   # every choice; collected if missing: 12 colours x 10
+    test_data: str = "data/test.npz"         # scored once per policy, never for a choice (evaluate --split test)
     train_demos: int = 24                    # demos per meta-training colour when collecting
-    heldout_demos: int = 10                  # demos per held-out colour when collecting
+    validation_demos: int = 10               # demos per validation colour when collecting
+    test_demos: int = 10                     # demos per test colour when collecting
     demo_noise: float = 0.1                  # DART torque noise (N m) when collecting (docs/imitation.md)
     iterations: int = 2000                   # meta-iterations (one Adam step each)
     meta_batch: int = 5                      # tasks per meta-iteration (MIL: 5)
@@ -37,8 +39,8 @@ class TrainConfig:
                                              # starting at `alpha` (stored as inner.STEP_PREFIX params)
     seed: int = 0                            # parameters and meta-batch sampling
     log_every: int = 10
-    eval_every: int = 500                    # held-out one-shot success during training
-    eval_trials: int = 5                     # trials per held-out colour in those evaluations (60 in all)
+    eval_every: int = 500                    # one-shot success on the validation colours during training
+    eval_trials: int = 5                     # trials per validation colour in those checks (60 in all)
     checkpoint_every: int = 100
     shards: int = 2                          # processes sharing each meta-gradient, each on its block of
                                              # every demo's frames (`oneshot.maml.shards`; results depend on it)
@@ -47,7 +49,7 @@ class TrainConfig:
     lstm_units: int = 100                    # the LSTM baseline's width (the paper's: 512)
     random_stds: tuple = (0.1, 0.25, 0.5, 1.0, 2.0)   # the random baseline's torque std, in units of the
                                              # torque bound (1.0 = the bound); the best on the
-                                             # meta-training colours is kept
+                                             # validation colours is kept
     palette: str = "hues"                    # colours when collecting: "hues" (48) or "grid" (`oneshot.world.palette`)
     tasks: int = 0                           # meta-train on the first `tasks` colours of train_data (0: all)
     demos: int = 0                           # ... and the first `demos` demos of each (0: all)
@@ -73,8 +75,9 @@ PROFILES = {
     "literal-bias": dataclasses.replace(_MIL, bias_transform=10),
     "literal-points": dataclasses.replace(_MIL, bias_transform=10, feature_points=True),
     # Seconds: 20 iterations on 3 colours x 3 demos (tests, and a first look).
-    "smoke": TrainConfig(train_data="data/smoke_train.npz", heldout_data="data/smoke_heldout.npz",
-                        train_demos=3, heldout_demos=2, iterations=20, meta_batch=2, log_every=1, eval_every=0,
+    "smoke": TrainConfig(train_data="data/smoke_train.npz", validation_data="data/smoke_validation.npz",
+                         test_data="data/smoke_test.npz", test_demos=2,
+                        train_demos=3, validation_demos=2, iterations=20, meta_batch=2, log_every=1, eval_every=0,
                         checkpoint_every=5, shards=1),
 }
 

@@ -67,11 +67,11 @@ def update_ema(ema, params, decay):
     return {k: d * ema[k] + (1.0 - d) * params[k] for k in params}
 
 
-def steps(method, cfg, state, demos, end=None, heldout=None, pool=None):
+def steps(method, cfg, state, demos, end=None, validation=None, pool=None):
     """Meta-train from `state` up to iteration `end` (default cfg.iterations); after every whole
     iteration yield (state, records): records are the log lines it made, dicts with "iteration" and
-    "meta_loss" (every cfg.log_every) or "heldout_success" and "trials" (every cfg.eval_every, if a
-    `heldout` dataset is given: one-shot success of the policy it would act with).
+    "meta_loss" (every cfg.log_every) or "validation_success" and "trials" (every cfg.eval_every, if a
+    `validation` dataset is given: one-shot success of the policy it would act with, on its colours).
 
     method: `methods.of(cfg)`, a method that learns by gradient. demos: (images (N, K, T, H, W, 3),
     states (N, K, T, 6), actions (N, K, T, 2)) in network units (`imitation.prepare_demos`).
@@ -96,23 +96,23 @@ def steps(method, cfg, state, demos, end=None, heldout=None, pool=None):
         done, records = it + 1, []
         if done % cfg.log_every == 0:
             records.append({"iteration": done, "meta_loss": float(loss)})
-        if heldout is not None and cfg.eval_every and done % cfg.eval_every == 0:
+        if validation is not None and cfg.eval_every and done % cfg.eval_every == 0:
             condition = method.conditioner(params if ema is None else ema, seed=done)
             try:
-                r = imitation.one_shot_success(condition, heldout, cfg.eval_trials, seed=done, progress=False)
+                r = imitation.one_shot_success(condition, validation, cfg.eval_trials, seed=done, progress=False)
             except imitation.PolicyDiverged:
-                raise TrainingDiverged(f"the policy's torques became NaN or inf in the held-out check at "
+                raise TrainingDiverged(f"the policy's torques became NaN or inf in the validation check at "
                                        f"iteration {done}") from None
-            records.append({"iteration": done, "heldout_success": r["rate"], "trials": r["trials"]})
+            records.append({"iteration": done, "validation_success": r["rate"], "trials": r["trials"]})
         yield State(params, adam, ema, done, rng.bit_generator.state), records
 
 
-def meta_train(method, cfg, state, demos, end=None, heldout=None, pool=None, progress=True):
+def meta_train(method, cfg, state, demos, end=None, validation=None, pool=None, progress=True):
     """Run `steps` to the end: returns (the final state, every log record). Arguments as `steps`."""
     end = cfg.iterations if end is None else end
     log = []
     with tqdm(total=end, initial=state.iteration, desc="meta-training", disable=not progress) as bar:
-        for state, records in steps(method, cfg, state, demos, end, heldout, pool):
+        for state, records in steps(method, cfg, state, demos, end, validation, pool):
             log += records
             bar.update()
     return state, log

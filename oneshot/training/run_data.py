@@ -1,7 +1,10 @@
-"""The datasets a run meta-trains and checks on: found, or collected with the profile's settings, and the
-smaller meta-training sets of the data-size experiment.
+"""The datasets of a run's protocol: its meta-training colours, the validation colours every choice reads
+(training's checks, early stopping, hyperparameters, the random policy's std), and the test colours
+scored once per trained policy; found, or collected with the profile's settings, and checked to be
+what the profile asks for.
 
-    train_set, heldout_set = run_data.ensure(cfg)        # collected first if missing
+    train_set, validation_set = run_data.ensure(cfg)                # collected first if missing
+    test_set = run_data.load(cfg, "test")                            # evaluation only: never collected here
     train_set = run_data.subset(train_set, tasks=72, demos=12)
 """
 import os
@@ -14,38 +17,80 @@ from oneshot.world import palette
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
 
-# split -> the collect seed of the profile's datasets (the same seeds every profile uses)
-SEEDS = {"train": 0, "heldout": 1}
+# split -> the collect seed of every profile's datasets
+SEEDS = {"train": 0, "validation": 1, "test": 2}
 
 
-def specs(cfg):
-    """[(path, split, demos per colour, seed)] of the datasets a TrainConfig trains and checks on."""
-    return [(cfg.train_data, "train", cfg.train_demos, SEEDS["train"]),
-            (cfg.heldout_data, "heldout", cfg.heldout_demos, SEEDS["heldout"])]
+class DataMismatch(ValueError):
+    """A dataset at a profile's path was collected with other settings than the profile's."""
 
 
-def collect_command(path, split, demos, seed, cfg):
-    """The `python -m oneshot.collect` command that makes the dataset at `path` for a TrainConfig:
-    every colour of the split, `demos` demos each, the profile's seed, noise and palette."""
+def spec(cfg, split):
+    """(path, demos per colour, collect seed) of a TrainConfig's dataset of `split`."""
+    path, demos = {"train": (cfg.train_data, cfg.train_demos), "validation": (cfg.validation_data, cfg.validation_demos),
+                   "test": (cfg.test_data, cfg.test_demos)}[split]
+    return path, demos, SEEDS[split]
+
+
+def collect_command(cfg, split):
+    """The `python -m oneshot.collect` command that makes a TrainConfig's dataset of `split`: every colour
+    of the split, the profile's demos per colour, seed, noise and palette."""
+    path, demos, seed = spec(cfg, split)
     tasks = len(palette.split_colours(split, PaletteConfig(mode=cfg.palette)))
     words = ["python", "-m", "oneshot.collect", "--out", path, "--split", split, "--tasks", str(tasks),
-             "--demos", str(demos), "--seed", str(seed), "--noise", str(cfg.demo_noise)]
+             "--demos", str(demos), "--seed", str(seed), "--noise", f"{cfg.demo_noise:g}"]
     return shlex.join(words + (["--palette", cfg.palette] if cfg.palette != "hues" else []))
 
 
-def ensure(cfg, progress=True):
-    """[meta-training set, held-out set] of a TrainConfig, each loaded, or collected first if missing
+def missing(cfg, splits, flags=None):
+    """None if every dataset of `splits` exists; else one message naming each missing file (and its flag,
+    from `flags` {split: flag}) and the commands that make them all."""
+    gone = [split for split in splits if not os.path.exists(spec(cfg, split)[0])]
+    if not gone:
+        return None
+    named = ", ".join(f"{spec(cfg, s)[0]!r} ({s}{', ' + flags[s] if flags and s in flags else ''})" for s in gone)
+    return (f"no dataset at {named}; make {'it' if len(gone) == 1 else 'them'} with: "
+            + " && ".join(collect_command(cfg, s) for s in gone))
+
+
+def check(cfg, split, metadata, path):
+    """Raise DataMismatch unless a dataset (its metadata) holds what the profile's `split` asks for: that
+    split's colours of the profile's palette, collected with the profile's seed and DART noise, with at
+    least the profile's demos per colour."""
+    _, demos, seed = spec(cfg, split)
+    wanted = {"split": split, "palette": cfg.palette, "seed": seed, "noise": cfg.demo_noise}
+    held = {"split": metadata.get("split"), "palette": metadata.get("world", {}).get("palette", {}).get("mode"),
+            "seed": metadata.get("seed"), "noise": metadata.get("expert", {}).get("action_noise")}
+    differ = [f"{k} {held[k]!r}, not {wanted[k]!r}" for k in wanted if held[k] != wanted[k]]
+    if metadata.get("demos_per_task", 0) < demos:
+        differ.append(f"{metadata.get('demos_per_task')} demos per colour, not {demos}")
+    if differ:
+        raise DataMismatch(f"{path} was collected with other settings than this run's {split} data: "
+                           f"{'; '.join(differ)}; move it away (this command then collects the right one: "
+                           f"{collect_command(cfg, split)}), or name another file")
+
+
+def load(cfg, split):
+    """The profile's dataset of `split`, loaded and checked (`check`)."""
+    path = spec(cfg, split)[0]
+    dataset = datasets.load(path)
+    check(cfg, split, dataset["metadata"], path)
+    return dataset
+
+
+def ensure(cfg, splits=("train", "validation"), progress=True):
+    """[the dataset of each split] of a TrainConfig, loaded and checked, each collected first if missing
     (every colour of its split: 36 and 12 in the hues palette)."""
     out = []
-    for path, split, demos, seed in specs(cfg):
+    for split in splits:
+        path, demos, seed = spec(cfg, split)
         if not os.path.exists(path):
-            print(f"{path} is missing: collecting it ({collect_command(path, split, demos, seed, cfg)})",
-                  file=sys.stderr)
+            print(f"{path} is missing: collecting it ({collect_command(cfg, split)})", file=sys.stderr)
             world_cfg = WorldConfig(palette=PaletteConfig(mode=cfg.palette))
             tasks = len(palette.split_colours(split, world_cfg.palette))
             datasets.save(collection.collect(tasks, demos, split, seed, progress=progress, world_cfg=world_cfg,
                                              expert_cfg=ExpertConfig(action_noise=cfg.demo_noise)), path)
-        out.append(datasets.load(path))
+        out.append(load(cfg, split))
     return out
 
 

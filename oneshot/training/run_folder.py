@@ -2,7 +2,7 @@
 
 A run folder holds `checkpoint.npz` (parameters, Adam state, iteration, random state, configs; written
 atomically every `checkpoint_every` iterations and at the end) and `log.jsonl` (one JSON object per
-line: meta-loss every `log_every` iterations, held-out one-shot success every `eval_every`). One
+line: meta-loss every `log_every` iterations, one-shot success on the validation colours every `eval_every`). One
 process trains in a folder at a time (`lock_run`); Ctrl-C or a plain kill saves a checkpoint of the last
 finished iteration before it exits, and `resume=True` continues from it exactly as if nothing had stopped.
 Missing datasets are collected first with the profile's settings (`training.run_data`).
@@ -107,13 +107,13 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
 def _train(method, cfg, run_dir, resume, progress, stop_after):
     ckpt_path, log_path = os.path.join(run_dir, "checkpoint.npz"), os.path.join(run_dir, "log.jsonl")
     # 1. Data: both splits, in network units (images in [0, 1], states and torques of order one).
-    train_set, heldout_set = run_data.ensure(cfg, progress)
+    train_set, validation_set = run_data.ensure(cfg, progress=progress)
     train_set = run_data.subset(train_set, cfg.tasks, cfg.demos)
     world = train_set["metadata"]["world"]       # what the checkpoint records, to be checked against data
 
     # 2. Parameters, optimiser and random state: fresh, or exactly as the checkpoint left them.
     if resume:
-        state, net_cfg, before = _resume(cfg, ckpt_path, log_path, train_set, heldout_set)
+        state, net_cfg, before = _resume(cfg, ckpt_path, log_path, train_set, validation_set)
     else:
         if os.path.exists(ckpt_path):
             raise FileExistsError(f"{run_dir!r} already holds a run; use --resume, or another --run folder")
@@ -126,10 +126,9 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
     recorded = lambda: None if before is None else seconds()
     save = lambda s: checkpoint.save(ckpt_path, s.params, s.adam, s.iteration, s.generator(), cfg, net_cfg,
                                      s.ema, world, recorded())
-    if not method.learns:                        # nothing to train by gradient: fit, save, done
-        choose_on = run_data.subset(train_set, min(36, len(train_set["images"])))
-        params, scores = method.fit(state.params, choose_on, cfg.eval_trials, cfg.seed)
-        _log_now(log_path, {"iteration": 0, "fit_on_training_colours": scores})
+    if not method.learns:                        # nothing to train by gradient: choose on validation, save
+        params, scores = method.fit(state.params, validation_set, cfg.eval_trials, cfg.seed)
+        _log_now(log_path, {"iteration": 0, "fit_on_validation_colours": scores})
         save(loop.State(params, optim.adam_init(params), None, cfg.iterations, state.rng))
         return params
 
@@ -143,11 +142,11 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
     bar = tqdm(total=cfg.iterations, initial=state.iteration, desc="meta-training", disable=not progress)
     try:
         with files.open_write(log_path) as log:
-            for finished, records in loop.steps(method, cfg, state, demos, end, heldout_set, pool):
+            for finished, records in loop.steps(method, cfg, state, demos, end, validation_set, pool):
                 for record in records:
                     _log(log, dict(record, seconds=seconds()) if "meta_loss" in record else record)
-                bar.set_postfix({k: f"{v:.3f}" for r in records for k, v in r.items() if k in ("meta_loss", "heldout_success")},
-                                refresh=False)
+                bar.set_postfix({k: f"{v:.3f}" for r in records for k, v in r.items()
+                                 if k in ("meta_loss", "validation_success")}, refresh=False)
                 bar.update()
                 if finished.iteration % cfg.checkpoint_every == 0 or finished.iteration == end:
                     save(finished)
@@ -171,7 +170,7 @@ def _resume(cfg, ckpt_path, log_path, *data):
     """(state, network config, meta-training seconds so far) from the run's checkpoint, after checking
     that it was trained with this config (but RESUMABLE fields) on data like `data`."""
     ckpt = checkpoint.load(ckpt_path)
-    for dataset, path in zip(data, (cfg.train_data, cfg.heldout_data)):
+    for dataset, path in zip(data, (cfg.train_data, cfg.validation_data)):
         fit_check.check_data(ckpt, dataset["metadata"], ckpt_path, path)   # e.g. the file was replaced
     stored = dataclasses.replace(ckpt["config"], **{name: getattr(cfg, name) for name in RESUMABLE})
     if stored != cfg:

@@ -1,22 +1,32 @@
 """Colours, and so tasks: a task is "reach the object of colour c" (paper Section IV).
 
 Meta-learning needs many tasks: MIL meta-trained its simulated reaching on 750 to 1650 colours, while
-the default palette here has 36. So there are two palettes, chosen by `PaletteConfig.mode`:
+the default palette here has 36. So there are two palettes, chosen by `PaletteConfig.mode`. Each has
+three splits of colours (`split_colours`): meta-training colours, validation colours for every choice
+(hyperparameters, iterations, early stopping, ablations), and test colours that no choice has seen,
+scored once per trained policy. Validation and test colours are of the held-out hues:
 
 - "hues" (the default, and the shipped policy's): 48 fully saturated hues, 7.5 degrees apart. Every
-  4th hue (0, 30, ..., 330 degrees) is held out: 36 meta-training and 12 held-out colours. Held-out
-  colours are 7.5 degrees of hue from the nearest training colour.
+  4th hue (0, 30, ..., 330 degrees) is held out: 36 meta-training colours and 12 validation colours,
+  each 7.5 degrees of hue from the nearest training colour. The 36 test colours are the 12 held-out
+  hues at (saturation, value) (0.8, 1.0), (1.0, 0.8) and (0.8, 0.8): as far in hue from training
+  colours as the validation colours, and never fully saturated and bright like every training colour.
 - "grid": hue x saturation x value. 72 hues 5 degrees apart x saturations (1.0, 0.75, 0.5) x values
   (1.0, 0.8, 0.6) = 648 colours. The held-out hues are again every 30 degrees (0, 30, ..., 330, the
   same 12 hues as "hues" mode), with all 9 of their saturation/value variants: 108 held-out colours.
   A guard band (`guard` = 1 hue) either side of each held-out hue belongs to NEITHER split, so every
   held-out colour is at least 10 degrees of hue from every training colour. That leaves 36 training
-  hues x 9 = 324 meta-training colours (and 216 unused guard colours).
+  hues x 9 = 324 meta-training colours (and 216 unused guard colours). The 108 colours of the held-out
+  hues are the validation colours; the 48 test colours are the held-out hues at saturations (0.875,
+  0.625) x values (0.9, 0.7), between the validation colours' levels: 10 degrees of hue from every
+  training colour, as the validation colours are, and distinct from every validation colour.
 
-Minimum distances, RGB 0-255, Euclidean, over every pair (`tests/test_palette.py` checks the grid's):
+Minimum distances, RGB 0-255, Euclidean, over every pair (`tests/test_palette.py` checks them):
 
                                                    grid    hues
-    any held-out colour to any training colour     12.0    31.0   (grid: hues 10 deg apart, sat 0.5, val 0.6)
+    any validation colour to any training colour   12.0    31.0   (grid: hues 10 deg apart, sat 0.5, val 0.6)
+    any test colour to any training colour         26.9    51.4   (hues 10 and 7.5 deg apart, as validation)
+    any test colour to any validation colour       27.7    51.0   (the same hue, one level apart)
     any two training colours                        6.0    32.0   (grid: hues 5 deg apart, sat 0.5, val 0.6)
     training colours that can share a scene        56.8   185.7   (>= 60 deg apart in hue)
     any colour to the black background              153     255
@@ -28,27 +38,31 @@ of hue moves one channel by about 6 units. The centre pixel of a disc keeps its 
 little: values (1.0, 0.85, 0.7) raise the held-out margin to 14, saturations (1.0, 0.8, 0.55) with
 those values to 16 (and the training minimum to 8), so the grid keeps its evenly spaced levels.
 
-Both modes: held-out colours never appear in meta-training, not even as distractors, so at meta-test
-the policy meets colours it has never seen; within one scene any two objects differ in HUE by at least
-`min_separation_deg` (60), so distractors are clearly different colours even at low saturation.
+Both modes: validation and test colours never appear in meta-training, not even as distractors (a
+scene's distractors come from its target's split), so at meta-test the policy meets colours it has never
+seen; within one scene any two objects differ in HUE by at least `min_separation_deg` (60), so
+distractors are clearly different colours even at low saturation.
 
-Colour indices are plain ints 0 .. n_colours(cfg) - 1, hue-major: index = hue * per_hue + variant, with
-variant = saturation level * len(values) + value level. In "hues" mode per_hue is 1, so an index is its
-hue, and every function returns exactly what it did before "grid" mode existed.
+Colour indices are plain ints 0 .. n_colours(cfg) - 1. The grid's come first, hue-major: index = hue *
+per_hue + variant, with variant = saturation level * len(values) + value level; then the test colours,
+held-out hue by held-out hue, `test_levels` each. In "hues" mode per_hue is 1, so an index below 48 is
+its hue, and every colour has the index it had before the test split existed.
 """
 import colorsys
 from dataclasses import dataclass
 
 import numpy as np
 
-SPLITS = ("train", "heldout")
+SPLITS = ("train", "validation", "test")
+LEGACY_SPLITS = {"heldout": "validation"}   # what older datasets and checkpoints call a split
 MODES = ("hues", "grid")
 
 # The defaults each mode gives the fields left at None (see PaletteConfig).
 _DEFAULTS = {
-    "hues": {"size": 48, "heldout_every": 4, "saturations": (1.0,), "values": (1.0,), "guard": 0},
+    "hues": {"size": 48, "heldout_every": 4, "saturations": (1.0,), "values": (1.0,), "guard": 0,
+             "test_levels": ((0.8, 1.0), (1.0, 0.8), (0.8, 0.8))},
     "grid": {"size": 72, "heldout_every": 6, "saturations": (1.0, 0.75, 0.5), "values": (1.0, 0.8, 0.6),
-             "guard": 1},
+             "guard": 1, "test_levels": ((0.875, 0.9), (0.875, 0.7), (0.625, 0.9), (0.625, 0.7))},
 }
 
 
@@ -65,6 +79,7 @@ class PaletteConfig:
     saturations: tuple = None         # saturation levels of every hue ((1.0,); grid (1.0, 0.75, 0.5))
     values: tuple = None              # value (brightness) levels ((1.0,); grid (1.0, 0.8, 0.6))
     guard: int = None                 # hues either side of a held-out hue used by neither split (0; grid 1)
+    test_levels: tuple = None         # (saturation, value) pairs of the test colours, at every held-out hue
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -77,6 +92,12 @@ class PaletteConfig:
             if not levels or not all(0 < x <= 1 for x in levels):
                 raise ValueError(f"palette {name} must be a non-empty sequence in (0, 1]; got {levels}")
             object.__setattr__(self, name, levels)
+        pairs = tuple(tuple(float(x) for x in pair) for pair in self.test_levels)
+        if not pairs or not all(len(p) == 2 and all(0 < x <= 1 for x in p) for p in pairs) or \
+                set(pairs) & {(s, v) for s in self.saturations for v in self.values}:
+            raise ValueError(f"palette test_levels must be (saturation, value) pairs in (0, 1], none of them a "
+                             f"validation colour's; got {self.test_levels}")
+        object.__setattr__(self, "test_levels", pairs)
         if self.size < 1 or self.heldout_every < 1 or self.guard < 0:
             raise ValueError(f"palette needs size >= 1, heldout_every >= 1 and guard >= 0; "
                              f"got {self.size}, {self.heldout_every}, {self.guard}")
@@ -90,21 +111,43 @@ def per_hue(cfg=PaletteConfig()):
     return len(cfg.saturations) * len(cfg.values)
 
 
-def n_colours(cfg=PaletteConfig()):
-    """How many colours the palette has (48; the default grid 648). Indices run 0 .. n_colours - 1."""
+def n_grid(cfg=PaletteConfig()):
+    """How many colours the hue x level grid has (48; the default grid 648): the train and validation
+    colours (and guard colours) have indices below it, the test colours from it on."""
     return cfg.size * per_hue(cfg)
+
+
+def heldout_hues(cfg=PaletteConfig()):
+    """(k,) int: the held-out hue columns, whose colours are the validation and test colours."""
+    return np.flatnonzero(hue_steps_to_heldout(cfg) == 0)
+
+
+def n_colours(cfg=PaletteConfig()):
+    """How many colours the palette has (84; the default grid 696). Indices run 0 .. n_colours - 1."""
+    return n_grid(cfg) + len(heldout_hues(cfg)) * len(cfg.test_levels)
 
 
 def colour_hue(i, cfg=PaletteConfig()):
     """The hue column (0 .. size - 1) of palette index i (broadcasts); its angle is 360 hue / size deg."""
-    return np.asarray(i) // per_hue(cfg)
+    i, grid = np.asarray(i), n_grid(cfg)
+    test = heldout_hues(cfg)[np.maximum(i - grid, 0) // len(cfg.test_levels) % len(heldout_hues(cfg))]
+    return np.where(i < grid, i // per_hue(cfg), test)
+
+
+def colour_levels(i, cfg=PaletteConfig()):
+    """(saturation, value) of palette index i (a Python int)."""
+    i = int(i)
+    if i >= n_grid(cfg):
+        return cfg.test_levels[(i - n_grid(cfg)) % len(cfg.test_levels)]
+    s, v = divmod(i % per_hue(cfg), len(cfg.values))
+    return cfg.saturations[s], cfg.values[v]
 
 
 def palette_rgb(cfg=PaletteConfig()):
-    """All palette colours. Returns (n_colours, 3) uint8; row i is hue 360 (i // per_hue) / size
-    degrees at the (i % per_hue)-th (saturation, value) pair, saturation-major."""
-    rgb = [colorsys.hsv_to_rgb(h / cfg.size, s, v)
-           for h in range(cfg.size) for s in cfg.saturations for v in cfg.values]
+    """All palette colours. Returns (n_colours, 3) uint8; row i is hue 360 colour_hue(i) / size degrees
+    at saturation and value colour_levels(i)."""
+    rgb = [colorsys.hsv_to_rgb(int(colour_hue(i, cfg)) / cfg.size, *colour_levels(i, cfg))
+           for i in range(n_colours(cfg))]
     return np.round(np.array(rgb) * 255).astype(np.uint8)
 
 
@@ -118,12 +161,14 @@ def hue_steps_to_heldout(cfg=PaletteConfig()):
 
 
 def split_colours(split, cfg=PaletteConfig()):
-    """Palette indices of a split. split: "train" or "heldout" -> (n,) int, sorted."""
+    """Palette indices of a split: "train", "validation" or "test" -> (n,) int, sorted."""
     if split not in SPLITS:
-        raise ValueError(f"unknown colour split {split!r}; use one of {SPLITS}")
-    idx = np.arange(n_colours(cfg))
+        raise ValueError(f"unknown colour split {split!r}; use one of {', '.join(SPLITS)}")
+    if split == "test":
+        return np.arange(n_grid(cfg), n_colours(cfg))
+    idx = np.arange(n_grid(cfg))
     steps = hue_steps_to_heldout(cfg)[colour_hue(idx, cfg)]
-    return idx[steps == 0] if split == "heldout" else idx[steps > cfg.guard]
+    return idx[steps == 0] if split == "validation" else idx[steps > cfg.guard]
 
 
 def hue_distance_deg(i, j, cfg=PaletteConfig()):
@@ -136,12 +181,11 @@ def colour_name(i, cfg=PaletteConfig()):
     """A short name for pictures and tables: "hue 30 deg"; in grid mode "hue 30 deg, sat 0.75, val 0.8"."""
     if not 0 <= i < n_colours(cfg):
         raise ValueError(f"colour {i!r} is not a palette index in [0, {n_colours(cfg)})")
-    hue, variant = divmod(int(i), per_hue(cfg))
-    name = f"hue {360 * hue / cfg.size:g} deg"
-    if cfg.mode == "hues":
+    name = f"hue {360 * int(colour_hue(i, cfg)) / cfg.size:g} deg"
+    if cfg.mode == "hues" and i < n_grid(cfg):
         return name
-    s, v = divmod(variant, len(cfg.values))
-    return f"{name}, sat {cfg.saturations[s]:g}, val {cfg.values[v]:g}"
+    s, v = colour_levels(i, cfg)
+    return f"{name}, sat {s:g}, val {v:g}"
 
 
 def check_colour(colour, split, cfg=PaletteConfig()):
