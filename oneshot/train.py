@@ -21,6 +21,7 @@ import numpy as np
 
 from oneshot import methods
 from oneshot.maml import shards
+from oneshot.methods import mil
 from oneshot.methods.mil import INNER_PARAMS
 from oneshot.tools import cli, host
 from oneshot.training import checkpoint, run_data
@@ -46,6 +47,7 @@ def main(argv=None):
              tuple: cli.finite_non_negative_floats, str: str}
     kinds_of = {name: cli.positive_int for name in ("iterations", "meta_batch", "log_every", "eval_trials",
                                                     "checkpoint_every", "shards", "lstm_units")}
+    kinds_of["never_adapt"] = _prefixes
     kinds_of.update(train_demos=cli.at_least(2, " (MAML adapts on one demo and scores another)"),
                     validation_demos=cli.at_least(2, " (one to adapt on, another to evaluate)"))
     choices = {"lr_schedule": ("constant", "cosine"), "inner_params": sorted(INNER_PARAMS), "method": methods.NAMES,
@@ -97,6 +99,8 @@ def main(argv=None):
     if method.shards > frames:
         p.error(f"argument --shards: the processes share each demo's {frames} frames, so 1 to {frames}; "
                 f"got {cfg.shards}")
+    if method.adapts:
+        print(mil.describe(cfg))                    # in both loss conventions
     host.tune_malloc()
     t0 = time.perf_counter()
     previous = signal.signal(signal.SIGTERM, _terminate)    # a plain kill stops training as Ctrl-C does
@@ -106,6 +110,11 @@ def main(argv=None):
         signal.signal(signal.SIGTERM, previous)
     done = f"trained {cfg.iterations} meta-iterations" if method.learns else f"fitted the {cfg.method} policy"
     print(f"{done} in {time.perf_counter() - t0:.0f} s; checkpoint: {os.path.join(run, 'checkpoint.npz')}")
+
+
+def _prefixes(text):
+    """An argparse type: comma-separated parameter-name prefixes ("ln,fp_" -> ("ln", "fp_")); "" for none."""
+    return tuple(p.strip() for p in text.split(",") if p.strip())
 
 
 def _terminate(signum, frame):

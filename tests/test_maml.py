@@ -252,6 +252,8 @@ def test_float32_stays_float32(first_order):
     alpha = np.float64(0.01)  # a float64 scalar step size must not promote the params
     adapted = inner_update(params, tasks[0][0], mlp_loss, alpha, 3, first_order)
     value, grads = meta_gradient(params, tasks, mlp_loss, alpha, 3, first_order)
+    released = meta_gradient(params, tasks, mlp_loss, alpha, 1, first_order, clip=0.5, loss_scale=250.0)[1]
+    assert all(g.dtype == np.float32 for g in released.values())      # the clip and the scale keep float32
     assert all(v.dtype == np.float32 for v in adapted.values())
     assert np.asarray(value).dtype == np.float32
     assert all(g.dtype == np.float32 for g in grads.values())

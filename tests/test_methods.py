@@ -5,7 +5,6 @@ eq. (1) is one inner loop: training's inner update and meta-test's give the same
 for every option."""
 import dataclasses
 import inspect
-import itertools
 import json
 import pathlib
 import re
@@ -93,8 +92,9 @@ def test_nothing_outside_the_methods_modules_tests_a_methods_name():
 
 # Every option of eq. (1) (the fields of InnerLoop, which are inner_update's keyword options) and the
 # values the test tries: a new option must be added here, or the first test below fails.
-OPTIONS = {"alpha": [0.0, 0.05], "steps": [0, 1, 2], "first_order": [False, True],
-           "only": [None, ("conv",), ("conv0_",), ("fc",)]}
+OPTIONS = {"alpha": [0.0, 0.05], "steps": [0, 2], "first_order": [False, True],
+           "only": [None, ("conv0_",), ("fc", "out")], "frozen": [(), ("ln", "fc0")], "clip": [0.0, 0.05],
+           "loss_scale": [1.0, 250.0]}
 
 
 def test_inner_loop_carries_exactly_the_options_of_inner_update():
@@ -108,19 +108,23 @@ def test_training_and_meta_test_adapt_to_the_same_parameters_for_every_option(rn
     """Training's inner update (`batched.adapt_batch`: a meta-batch at once, its own gradient route) and
     meta-test's (`imitation.adapt` on one demo, what `methods.MIL.conditioner` does) are eq. (1) once:
     for every combination of options, task b's adapted parameters are the same numbers."""
-    net_cfg = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,), bias_transform=2, feature_points=True)
-    base = network.init_params(net_cfg, rng, np.float64)
+    net_cfg = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,), bias_transform=2, feature_points=True,
+                                    layer_norm=True)
+    net = network.init_params(net_cfg, rng, np.float64)
     B, T = 3, 4
     demos = (rng.random((B, T, 8, 8, 3)), rng.normal(size=(B, T, 6)), rng.normal(size=(B, T, 2)))
-    for values in itertools.product(*OPTIONS.values()):
-        loop = InnerLoop(**dict(zip(OPTIONS, values)))
-        params = dict(base, **inner.init_step_sizes(base, 0.03, loop.only)) if learnt else base
+    base = dict(alpha=0.05, steps=2, first_order=False, only=None, frozen=(), clip=0.0, loss_scale=1.0)
+    combos = [dict(base, **{name: value}) for name, values in OPTIONS.items() for value in values]   # each value
+    combos += [dict(base, frozen=("ln", "fc0"), clip=0.05, loss_scale=250.0, first_order=fo) for fo in (False, True)]
+    for combo in combos:                                                               # ... and them together
+        loop = InnerLoop(**combo)
+        params = dict(net, **inner.init_step_sizes(net, 0.03, loop.only, loop.frozen)) if learnt else net
         trained = batched.adapt_batch(params, demos, imitation.imitation_loss, loop)
         for b in range(B):
             tested = imitation.adapt(params, tuple(a[b] for a in demos), **loop.options())
             assert trained.keys() == tested.keys(), loop
             for k in tested:
-                np.testing.assert_allclose(trained[k][b] if np.ndim(trained[k]) > np.ndim(base[k]) else trained[k],
+                np.testing.assert_allclose(trained[k][b] if np.ndim(trained[k]) > np.ndim(net[k]) else trained[k],
                                            tested[k], rtol=1e-10, atol=1e-12, err_msg=f"{loop} {k}")
 
 
@@ -131,4 +135,28 @@ def test_the_mil_method_trains_and_tests_with_the_inner_loop_of_its_config():
         methods.of(dataclasses.replace(cfg, inner_params="fc9"))
     with pytest.raises(ValueError, match="alpha must be finite and >= 0"):
         InnerLoop(alpha=-1.0)
-    assert json.dumps(InnerLoop(0.1, np.int64(2)).options()) == '{"alpha": 0.1, "steps": 2, "first_order": false, "only": null}'
+    assert json.dumps(InnerLoop(0.1, np.int64(2)).options()) == ('{"alpha": 0.1, "steps": 2, "first_order": false, '
+                                                                 '"only": null, "frozen": [], "clip": 0.0, '
+                                                                 '"loss_scale": 1.0}')
+
+
+def test_the_released_inner_loop_options_differentiate_to_second_order_and_do_what_they_say(rng):
+    """Clip, frozen parameters and the loss scale, through the plain meta-objective: finite differences to
+    second order; a clipped step moves no element by more than alpha x clip; a frozen parameter keeps
+    its value; loss_scale s with step alpha is the step alpha s on the unscaled loss (without a clip)."""
+    from autograd.test_util import check_grads
+    net_cfg = network.NetworkConfig(image_size=8, channels=(2, 3), hidden=(4,), state_dim=6, layer_norm=True)
+    params = {k: v + 0.05 * rng.normal(size=v.shape) for k, v in network.init_params(net_cfg, rng, np.float64).items()}
+    demo = (rng.random((3, 8, 8, 3)), rng.normal(size=(3, 6)), rng.normal(size=(3, 2)))
+    other = (rng.random((3, 8, 8, 3)), rng.normal(size=(3, 6)), rng.normal(size=(3, 2)))
+    options = dict(alpha=0.01, steps=1, frozen=("ln",), clip=0.5, loss_scale=3.0)
+    check_grads(lambda p: inner.meta_objective(p, [(demo, other)], imitation.imitation_loss, **options),
+                modes=["rev"], order=2)(params)
+    adapted = inner.inner_update(params, demo, imitation.imitation_loss, **options)
+    moved = {k: np.abs(adapted[k] - params[k]).max() for k in params}
+    assert all(moved[k] <= 0.01 * 0.5 + 1e-15 for k in params) and max(moved.values()) == pytest.approx(0.005)
+    assert all(moved[k] == 0 for k in params if k.startswith("ln")) and moved["conv0_w"] > 0
+    scaled = inner.inner_update(params, demo, imitation.imitation_loss, alpha=0.01, steps=1, loss_scale=3.0)
+    plain = inner.inner_update(params, demo, imitation.imitation_loss, alpha=0.03, steps=1)
+    for k in params:
+        np.testing.assert_allclose(scaled[k], plain[k], rtol=1e-12, atol=1e-15)

@@ -36,7 +36,8 @@ def tiny_problem(config=TINY, T=2, dtype=np.float64, seed=0):
 # ----- the fast forward against the plain-autograd.numpy reference -----
 
 OPTIONS = {"flattened": {}, "feature_points": {"feature_points": True}, "bias_transform": {"bias_transform": 3},
-           "both": {"feature_points": True, "bias_transform": 2}}
+           "both": {"feature_points": True, "bias_transform": 2}, "layer_norm": {"layer_norm": True},
+           "released": {"layer_norm": True, "bias_transform": 2}}
 
 
 @pytest.mark.parametrize("options", OPTIONS.values(), ids=OPTIONS.keys())
@@ -79,7 +80,8 @@ def test_conv2d_reference_matches_naive_loops(stride, size, kernel):
         np.testing.assert_array_equal(conv2d_reference(x, w, b), out)
 
 
-@pytest.mark.parametrize("options", [OPTIONS["flattened"], OPTIONS["both"]], ids=["flattened", "both"])
+@pytest.mark.parametrize("options", [OPTIONS["flattened"], OPTIONS["both"], OPTIONS["layer_norm"]],
+                         ids=["flattened", "both", "layer_norm"])
 def test_per_task_forward_equals_the_reference_task_by_task(options):
     """MAML's batched path: parameters with a leading task axis (some or all of them) and a batch of
     demos give, task by task, the reference's actions and the reference's gradients (a per-task
@@ -204,8 +206,9 @@ def record_float_dtypes(monkeypatch):
     return seen
 
 
-def test_float32_stays_float32_through_second_order(monkeypatch):
-    params, images, states, actions = tiny_problem(dtype=np.float32)
+@pytest.mark.parametrize("options", [{}, OPTIONS["released"]], ids=["default", "layer_norm"])
+def test_float32_stays_float32_through_second_order(monkeypatch, options):
+    params, images, states, actions = tiny_problem(dataclasses.replace(TINY, **options), dtype=np.float32)
     loss = squared_error(predict, images, states, actions)   # anp.sum: anp.mean's VJP would promote
 
     seen = record_float_dtypes(monkeypatch)
@@ -289,3 +292,21 @@ def test_feature_points_second_order_gradients():
     assert params["fp_temperature"].shape == (1,)
     images, states = rng.random((2, 8, 8, 3)), rng.normal(size=(2, 6))
     check_grads(lambda p: predict(p, images, states), modes=["rev"], order=2)(params)
+
+
+def test_layer_norm_second_order_gradients_and_what_it_normalises():
+    """Layer norm (MIL's released code, offset only) passes the second-order check, on the plain path and
+    the fast one; each frame's map, before the offset, has mean 0 and variance 1 over H, W and C."""
+    config = dataclasses.replace(TINY, layer_norm=True, bias_transform=2)
+    params, images, states, actions = tiny_problem(config)
+    assert {k for k in params if k.startswith("ln")} == {"ln0_offset", "ln1_offset"}
+    check_grads(squared_error(forward_reference, images, states, actions), modes=["rev"], order=2)(params)
+    check_grads(squared_error(predict, images, states, actions), modes=["rev"], order=2)(params)
+    from oneshot.policy.network import layer_norm
+    x = np.random.default_rng(3).normal(2.0, 5.0, (4, 3, 5, 5, 6))
+    y = layer_norm(x, np.zeros(6))
+    np.testing.assert_allclose(y.mean(axis=(-3, -2, -1)), 0, atol=1e-12)
+    np.testing.assert_allclose(y.var(axis=(-3, -2, -1)), 1, rtol=1e-6)
+    offsets = np.arange(4 * 6).reshape(4, 6) / 10.0                 # per task: (B, C) for x's leading axis B = 4
+    np.testing.assert_allclose(layer_norm(x, offsets) - y, np.broadcast_to(offsets[:, None, None, None, :], x.shape),
+                               atol=1e-12)

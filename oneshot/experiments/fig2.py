@@ -32,7 +32,7 @@ from oneshot.data import collection, datasets
 from oneshot.maml import imitation
 from oneshot import methods
 from oneshot.tools import files, host
-from oneshot.training import checkpoint, run_data, run_folder
+from oneshot.training import checkpoint, run_data, run_folder, scoring
 from oneshot.world import palette
 from oneshot.training.config import PROFILES as PROFILES_TRAIN
 from oneshot.expert.controller import ExpertConfig
@@ -73,6 +73,25 @@ LINES = {
     "lstm-lr1e-3": _default(method="lstm", lr=1e-3),
     "lstm-512": _default(method="lstm", lstm_units=512),
 }
+# MIL's released code (tianheyu927/mil) in its inner loop and network, detail by detail, as changes to
+# mil-all (`--profile released` is all of them on the released training settings):
+RELEASED = {
+    "clip": dict(alpha=0.001, inner_loss_scale=250.0, inner_clip=20.0),  # its loss convention, gradient clip 20
+    "ln": dict(layer_norm=True, never_adapt=("ln",)),                    # layer norm, offsets never adapted
+    "flat": dict(feature_points=False),                                  # conv output flattened (--fp=False)
+    "mb25": dict(meta_batch=25),                                         # meta-batch 25
+    "adam": dict(lr=1e-3, clip=0.0),                                     # Adam 1e-3, no outer clip
+}
+_ALL = {k: v for change in RELEASED.values() for k, v in change.items()}
+# The ablation (issue 29): from mil-all add each detail; from all of them remove each; and 3 inner steps.
+LINES.update({f"mil-all+{d}": dataclasses.replace(LINES["mil-all"], **change) for d, change in RELEASED.items()})
+LINES["mil-released"] = dataclasses.replace(LINES["mil-all"], **_ALL)
+LINES.update({f"mil-released-{d}": dataclasses.replace(LINES["mil-released"], **{k: getattr(LINES["mil-all"], k)
+                                                                                for k in change})
+              for d, change in RELEASED.items()})
+LINES["mil-released+3steps"] = dataclasses.replace(LINES["mil-released"], inner_steps=3)
+ABLATION = ("mil-all", *(f"mil-all+{d}" for d in RELEASED), "mil-released", *(f"mil-released-{d}" for d in RELEASED),
+            "mil-released+3steps")
 FIGURE = ("mil-conv0", "mil-all", "contextual", "lstm", "random")      # the lines of the figure
 
 LABELS = {"mil-conv0": "MIL, first convolution adapts", "mil-all": "MIL, every parameter adapts (step 0.25)",
@@ -96,6 +115,7 @@ class SweepConfig:
     validation: tuple = (12, 10)           # validation (colours, demos): the random policy's std is chosen there
     test: tuple = (48, 10)                 # test (colours, demos): each trial adapts on one of the demos
     score: str = "test"                    # the split runs are scored on: "test", or "validation" to choose
+    eval_every: int = 0                    # each run's validation checks during training (0: none), its curve
 
     def __post_init__(self):
         if not self.sizes or len({c * d for c, d in self.sizes}) != len(self.sizes):
@@ -126,6 +146,8 @@ PROFILES = {
     "paper": SweepConfig(),
     "search": SweepConfig(name="search", sizes=((72, 12),), seeds=(0,), iterations=3000, score="validation",
                           methods=tuple(m for m in LINES if m != "random")),
+    "ablation": SweepConfig(name="ablation", sizes=((144, 16),), seeds=(0, 1), score="validation", methods=ABLATION,
+                            validation=(36, 10), eval_every=2000),
     "tiny": SweepConfig(name="tiny", sizes=((3, 3), (3, 4)), seeds=(0, 1), iterations=2, trials=2,  # tests
                         data=(3, 4), validation=(2, 2), test=(2, 2)),
 }
@@ -168,7 +190,7 @@ def run_context(cfg, data_dir="data/fig2"):
     sweep share. Paths are absolute (workers may start elsewhere)."""
     paths = data_paths(cfg, data_dir)
     return {"profile": cfg.name, "data_dir": os.path.abspath(data_dir), "trials": cfg.trials,
-            "palette_mode": cfg.palette_mode, "eval_seed": cfg.eval_seed, "score": cfg.score,
+            "palette_mode": cfg.palette_mode, "eval_seed": cfg.eval_seed, "score": cfg.score, "eval_every": cfg.eval_every,
             "train_data": paths["train"], "validation_data": paths["validation"], "test_data": paths["test"],
             "demos": {"train": cfg.data[1], "validation": cfg.validation[1], "test": cfg.test[1]}}
 
@@ -186,7 +208,8 @@ def run_config(spec, context):
         train_data=context["train_data"], validation_data=context["validation_data"], test_data=context["test_data"],
         train_demos=demos["train"], validation_demos=demos["validation"], test_demos=demos["test"],
         palette=context["palette_mode"], tasks=spec.colours, demos=spec.demos, seed=spec.seed,
-        iterations=spec.iterations, shards=1, eval_every=0, checkpoint_every=250, log_every=50)
+        iterations=spec.iterations, shards=1, eval_every=context.get("eval_every", 0), eval_trials=2,
+        checkpoint_every=250, log_every=50)
 
 
 def run_one(spec, run_dir, context):
@@ -215,6 +238,8 @@ def run_one(spec, run_dir, context):
     notes = {"per_colour": {str(c): round(rate * context["trials"]) for c, rate in r["per_colour"].items()}}
     if method.adapts:                                                # the same scenes, without eq. (1)
         notes["unadapted_successes"] = score(method.unadapted(params))["successes"]
+        gain = scoring.adaptation_gain(params, scored, method.conditioner(params))   # eq. (2) on a second demo
+        notes.update(eq2_before=round(gain["before"], 4), eq2_after=round(gain["after"], 4))
     notes.update(method.notes(params))
     if ckpt["seconds"] is None:
         spent, notes["wall"] = time.perf_counter() - t0, "this sitting"

@@ -62,7 +62,7 @@ def adapt_batch(params, adapt, loss_tasks, inner, reduce=None):
     """
     B = _batch_size(adapt)
     copies = {k: np.ones((B,) + (1,) * np.ndim(params[k]), dtype=params[k].dtype) * params[k]
-              for k in adapted_keys(params, inner.only)}
+              for k in adapted_keys(params, inner.only, inner.frozen)}
     return inner_update({**params, **copies}, adapt, loss_tasks, **inner.options(), gradient=_gradient,
                         reduce=reduce)
 

@@ -49,31 +49,34 @@ def check_step(alpha, steps):
 STEP_PREFIX = "inner_lr/"
 
 
-def adapted_keys(params, only=None):
+def adapted_keys(params, only=None, frozen=()):
     """The keys eq. (1) updates: all of them (only=None), or those starting with one of the prefixes
-    in `only` (e.g. ("conv",): adapt the convolution layers only; the rest stays shared). Learnt step
-    sizes (STEP_PREFIX keys) are never adapted."""
-    keys = [k for k in params if not k.startswith(STEP_PREFIX) and (only is None or k.startswith(tuple(only)))]
+    in `only` (e.g. ("conv",): adapt the convolution layers only; the rest stays shared), but none
+    starting with a prefix in `frozen` (parameters that never adapt, e.g. the layer norm's offsets in
+    MIL's released code). Learnt step sizes (STEP_PREFIX keys) are never adapted."""
+    keys = [k for k in params if not k.startswith(STEP_PREFIX) and (only is None or k.startswith(tuple(only)))
+            and not k.startswith(tuple(frozen))]
     if not keys:
-        raise ValueError(f"no parameter starts with any of {tuple(only)}; parameters are {list(params)}")
+        raise ValueError(f"no parameter adapts: no parameter starts with any of {only}"
+                         f"{' but not with any of ' + str(tuple(frozen)) if frozen else ''}; parameters are {list(params)}")
     return keys
 
 
-def init_step_sizes(params, alpha, only=None):
+def init_step_sizes(params, alpha, only=None, frozen=()):
     """Learnt step sizes for Meta-SGD: {STEP_PREFIX + k: alpha everywhere, shaped like params[k]} for
     every key eq. (1) adapts. Add them to params to meta-learn one step size per adapted element."""
     alpha = check_step(alpha, 1)
-    return {STEP_PREFIX + k: np.full_like(params[k], alpha) for k in adapted_keys(params, only)}
+    return {STEP_PREFIX + k: np.full_like(params[k], alpha) for k in adapted_keys(params, only, frozen)}
 
 
-def split(params, only, alpha):
+def split(params, only, alpha, frozen=()):
     """(fixed, keys, steps): the model parameters eq. (1) leaves alone, the keys it adapts, and each
     adapted key's step size: the learnt array params[STEP_PREFIX + key] if there is one, else alpha."""
-    keys = adapted_keys(params, only)
+    keys = adapted_keys(params, only, frozen)
     learnt = {k[len(STEP_PREFIX):]: v for k, v in params.items() if k.startswith(STEP_PREFIX)}
     if learnt and set(learnt) != set(keys):
         raise ValueError(f"learnt step sizes are for {sorted(learnt)} but eq. (1) adapts {sorted(keys)}; "
-                         f"build them with maml.init_step_sizes(params, alpha, only) for the same `only`")
+                         f"build them with inner.init_step_sizes(params, alpha, only, frozen) for the same options")
     fixed = {k: v for k, v in params.items() if k not in keys and not k.startswith(STEP_PREFIX)}
     return fixed, keys, {k: learnt.get(k, alpha) for k in keys}
 
@@ -86,12 +89,21 @@ class InnerLoop:
 
     alpha: step size (MIL reaching: 0.001); steps: inner gradient steps (MIL: 3);
     first_order: the inner gradient as a constant (first-order MAML);
-    only: None (every parameter adapts, as MIL) or key prefixes of the parameters that adapt.
+    only: None (every parameter adapts, as MIL) or key prefixes of the parameters that adapt;
+    frozen: key prefixes of parameters that never adapt, whatever `only` says (the released code's
+        layer-norm offsets are not among its adapted weights);
+    clip: each element of the inner gradient clipped to [-clip, clip] before the step (0: off; the
+        released code: `--clip=True --clip_min=-20 --clip_max=20`, on its loss);
+    loss_scale: the inner loss is loss_scale x the loss function (1: eq. (2) as we sum it; the released
+        code's mean((100 (u - u_hat))^2) is 10^4 / (T x 2) times it: 250 for our T = 20, 2 torques).
     """
     alpha: float = 0.001
     steps: int = 3
     first_order: bool = False
     only: tuple = None
+    frozen: tuple = ()
+    clip: float = 0.0
+    loss_scale: float = 1.0
 
     def __post_init__(self):
         object.__setattr__(self, "alpha", check_step(self.alpha, self.steps))
@@ -102,9 +114,18 @@ class InnerLoop:
             object.__setattr__(self, "only", tuple(self.only))
         if not isinstance(self.first_order, (bool, np.bool_)):
             raise ValueError(f"first_order must be True or False; got {self.first_order!r}")
+        if isinstance(self.frozen, str) or not all(isinstance(p, str) for p in self.frozen):
+            raise ValueError(f"frozen must be a tuple of key prefixes; got {self.frozen!r}")
+        object.__setattr__(self, "frozen", tuple(self.frozen))
+        for name in ("clip", "loss_scale"):
+            value = float(getattr(self, name))
+            if not (np.isfinite(value) and value >= 0) or (name == "loss_scale" and value == 0):
+                raise ValueError(f"{name} must be finite and {'> 0' if name == 'loss_scale' else '>= 0 (0: off)'}; "
+                                 f"got {getattr(self, name)!r}")
+            object.__setattr__(self, name, value)
 
     def options(self):
-        """The keyword options of `inner_update`: {"alpha", "steps", "first_order", "only"}."""
+        """The keyword options of `inner_update`: every field, by name."""
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
 
 
@@ -142,8 +163,8 @@ def gradient(f, theta):
     return grad(f)(theta)
 
 
-def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False, only=None, *,
-                 gradient=gradient, reduce=None):
+def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False, only=None, frozen=(), clip=0.0,
+                 loss_scale=1.0, *, gradient=gradient, reduce=None):
     """Adapt parameters to one demo by gradient descent: paper eq. (1), repeated `steps` times.
 
         theta' = theta - alpha * grad_theta L(theta, demo)
@@ -154,7 +175,9 @@ def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False,
         Meta-SGD) replace it element by element.
     first_order: treat each inner gradient as a constant (first-order MAML: d theta'/d theta = I).
     only: None (MIL: every parameter adapts) or key prefixes of the parameters that adapt; the
-        others keep their values.
+        others keep their values. frozen: key prefixes that never adapt, whatever `only` says.
+    clip: each inner gradient element clipped to [-clip, clip] before the step (0: off).
+    loss_scale: the inner loss is loss_scale x loss_fn (the released code's loss convention, `InnerLoop`).
     gradient(f, theta) -> df/dtheta: autograd's `grad`, or the batched path's faster route to the same
         numbers (`batched.adapt_batch`, which also gives every task its own copy of the parameters).
     reduce: None, or a function applied to every inner gradient before the step (`oneshot.maml.shards`:
@@ -163,14 +186,18 @@ def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False,
     with respect to `params` (first_order=False).
     """
     alpha = check_step(alpha, steps)
-    fixed, keys, step_size = split(params, only, alpha)
+    fixed, keys, step_size = split(params, only, alpha, frozen)
+    scale = float(loss_scale)
+    loss = loss_fn if scale == 1.0 else (lambda p, d: scale * loss_fn(p, d))
     theta = {k: params[k] for k in keys}
     for _ in range(steps):
         # first order: the gradient is taken at constants, cut from the outer graph
         at, shared = (constant(theta), constant(fixed)) if first_order else (theta, fixed)
-        g = gradient(lambda th: loss_fn({**shared, **th}, demo), at)
+        g = gradient(lambda th: loss({**shared, **th}, demo), at)
         if reduce is not None:
             g = {k: reduce(v) for k, v in g.items()}
+        if clip:
+            g = {k: np.clip(v, -clip, clip) for k, v in g.items()}
         theta = {k: step(theta[k], g[k], step_size[k]) for k in theta}         # eq. (1)
     return {**fixed, **theta}
 

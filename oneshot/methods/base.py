@@ -36,7 +36,7 @@ class Method:
     def network_config(self, image_size):
         """The NetworkConfig of its policy for images of `image_size` pixels (stored in checkpoints)."""
         return NetworkConfig(image_size=image_size, bias_transform=self.cfg.bias_transform,
-                             feature_points=self.cfg.feature_points)
+                             feature_points=self.cfg.feature_points, layer_norm=self.cfg.layer_norm)
 
     def init_params(self, net_cfg, rng):
         """Initial parameters: a dict of float32 arrays. rng: np.random.Generator."""

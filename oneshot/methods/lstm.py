@@ -21,7 +21,8 @@ def lstm_network_config(net_cfg, units):
     features, the state and the LSTM's summary of the demo (`units` numbers, counted as extra state)."""
     return NetworkConfig(image_size=net_cfg.image_size, channels=net_cfg.channels, kernel=net_cfg.kernel,
                          hidden=net_cfg.hidden, state_dim=net_cfg.state_dim + units,
-                         action_dim=net_cfg.action_dim, feature_points=net_cfg.feature_points)
+                         action_dim=net_cfg.action_dim, feature_points=net_cfg.feature_points,
+                         layer_norm=net_cfg.layer_norm)
 
 
 def lstm_init_params(net_cfg, units, rng, dtype=np.float32):

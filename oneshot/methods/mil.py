@@ -19,7 +19,23 @@ def inner_loop(cfg):
     if cfg.inner_params not in INNER_PARAMS:
         raise ValueError(f"inner_params must be one of {sorted(INNER_PARAMS)}; got {cfg.inner_params!r}")
     return inner.InnerLoop(alpha=cfg.alpha, steps=cfg.inner_steps, first_order=cfg.first_order,
-                           only=INNER_PARAMS[cfg.inner_params])
+                           only=INNER_PARAMS[cfg.inner_params], frozen=cfg.never_adapt, clip=cfg.inner_clip,
+                           loss_scale=cfg.inner_loss_scale)
+
+
+def describe(cfg):
+    """Eq. (1) of a config in words, in both loss conventions: ours (eq. (2) summed over frames and
+    torques) and MIL's released code's (mean((100 (u - u_hat))^2), 10^4 / (T x 2) times ours; T = 20)."""
+    loop = inner_loop(cfg)
+    released = 1e4 / (20 * 2)
+    step = loop.alpha * loop.loss_scale                            # the step on eq. (2) summed
+    words = [f"eq. (1): {loop.steps} step(s) of {loop.alpha:g} on {loop.loss_scale:g} x eq. (2)",
+             f"= {step:g} on eq. (2) summed = {step / released:g} on the released code's mean((100 du)^2)"]
+    if loop.clip:
+        words.append(f"inner gradient clipped to +-{loop.clip:g} on that loss (+-{loop.clip / loop.loss_scale:g} "
+                     f"on eq. (2) summed, +-{loop.clip * released / loop.loss_scale:g} on the released code's)")
+    words.append(f"adapting {cfg.inner_params}" + (f" but {', '.join(loop.frozen)}*" if loop.frozen else ""))
+    return "; ".join(words)
 
 
 class MIL(Method):
@@ -36,7 +52,7 @@ class MIL(Method):
         """The network's parameters, plus learnt inner step sizes (all `alpha`) if cfg.learn_alpha."""
         params = network.init_params(net_cfg, rng)
         if self.cfg.learn_alpha:
-            params.update(inner.init_step_sizes(params, self.cfg.alpha, self.inner.only))
+            params.update(inner.init_step_sizes(params, self.cfg.alpha, self.inner.only, self.inner.frozen))
         return params
 
     @property

@@ -26,6 +26,7 @@ from oneshot.policy import inputs
 from oneshot.policy.layers import add_bias, concat_last, conv2d, conv_output_size, matmul, per_frame, relu, spatial_soft_argmax
 
 STRIDE = 2   # every convolution halves the image side (MIL: stride 2)
+LN_EPSILON = 1e-6   # layer norm's variance floor (float32: an all-equal map is not divided by zero)
 
 
 @dataclass(frozen=True)
@@ -44,6 +45,8 @@ class NetworkConfig:
     feature_points: if True, the last convolution's channels become (x, y) feature points by a
                     spatial soft-argmax (`spatial_soft_argmax`), 2 per channel, instead of being
                     flattened (an option of MIL's released code; the default profile uses it).
+    layer_norm:     if True, each convolution's output is layer-normalised per frame before its ReLU, with
+                    a learnt offset per channel and no scale (MIL's released code); `layer_norm`.
     image_channels: channels of the input image: 3 (RGB), or 6 for the contextual baseline, which
                     stacks the demonstration's final image on the current one (`oneshot.methods.contextual`).
     """
@@ -57,6 +60,7 @@ class NetworkConfig:
     bias_transform: int = 0
     feature_points: bool = False
     image_channels: int = 3
+    layer_norm: bool = False
 
     def __post_init__(self):
         if self.kernel % 2 != 1:
@@ -84,6 +88,7 @@ def param_shapes(config):
     """Name -> shape of every parameter, in the fixed key order used by `init_params` and `predict`.
 
     conv{i}_w: (kernel, kernel, C_in, C_out)   conv{i}_b: (C_out,)
+    ln{i}_offset: (C_out,)                     (only with config.layer_norm)
     bias_transform: (bias_transform,)          (only when config.bias_transform > 0)
     fc{i}_w: (n_in, n_out)                     fc{i}_b: (n_out,)
     out_w: (hidden[-1], action_dim)            out_b: (action_dim,)
@@ -92,6 +97,8 @@ def param_shapes(config):
     for i, c_out in enumerate(config.channels):
         shapes[f"conv{i}_w"] = (config.kernel, config.kernel, c_in, c_out)
         shapes[f"conv{i}_b"] = (c_out,)
+        if config.layer_norm:
+            shapes[f"ln{i}_offset"] = (c_out,)
         c_in = c_out
     side = feature_sizes(config)[-1] if config.channels else config.image_size
     n_image = 2 * c_in if config.feature_points else side * side * c_in
@@ -210,11 +217,27 @@ def trunk(params, images):
     F = 2 * 40 feature points (with "fp_temperature" in params) or H/8 * W/8 * 40 flattened."""
     x, i = images, 0
     while f"conv{i}_w" in params:  # (T, H, W, 3) -> (T, H/2, W/2, 40) -> ... -> (T, H/8, W/8, 40)
-        x = relu(conv2d(x, params[f"conv{i}_w"], params[f"conv{i}_b"], STRIDE))
+        x = conv2d(x, params[f"conv{i}_w"], params[f"conv{i}_b"], STRIDE)
+        if f"ln{i}_offset" in params:
+            x = layer_norm(x, params[f"ln{i}_offset"])
+        x = relu(x)
         i += 1
     if "fp_temperature" in params:  # feature points: (T, 2 * 40) expected (x, y) of each channel
         return spatial_soft_argmax(x, params["fp_temperature"])
     return anp.reshape(x, (*x.shape[:-3], -1))  # (T, H/8 * W/8 * 40) image features
+
+
+def layer_norm(x, offset):
+    """Layer normalisation of each frame's feature map, offset only (MIL's released code: `norm='layer_norm'`,
+    center=True, scale=False, between each convolution and its ReLU): x (..., H, W, C) -> the same shape,
+    (x - mean) / sqrt(var + LN_EPSILON) + offset, mean and var over the frame's H, W and C."""
+    n = x.shape[-3] * x.shape[-2] * x.shape[-1]                 # sums over n, not anp.mean: mean's VJP
+    mean = anp.sum(x, axis=(-3, -2, -1), keepdims=True) / n     # divides by a float64 count (float32 stays)
+    centred = x - mean
+    var = anp.sum(centred * centred, axis=(-3, -2, -1), keepdims=True) / n
+    if anp.ndim(offset) > 1:                                   # per task (B, C) against (B, T, H, W, C)
+        offset = anp.reshape(offset, (anp.shape(offset)[0], 1, 1, 1, anp.shape(offset)[-1]))
+    return centred / anp.sqrt(var + LN_EPSILON) + offset
 
 
 def head(params, h):
@@ -256,7 +279,13 @@ def forward_reference(params, images, states):
     """
     x, i = images, 0
     while f"conv{i}_w" in params:                                   # (T, 32, 32, 3) -> ... -> (T, 4, 4, 40)
-        x = anp.maximum(conv2d_reference(x, params[f"conv{i}_w"], params[f"conv{i}_b"]), 0.0)
+        x = conv2d_reference(x, params[f"conv{i}_w"], params[f"conv{i}_b"])
+        h, w, c = x.shape[1:]
+        if f"ln{i}_offset" in params:                               # normalise each frame's whole map
+            mean = anp.sum(x, axis=(1, 2, 3), keepdims=True) / (h * w * c)
+            var = anp.sum((x - mean) ** 2, axis=(1, 2, 3), keepdims=True) / (h * w * c)
+            x = (x - mean) / anp.sqrt(var + LN_EPSILON) + params[f"ln{i}_offset"]
+        x = anp.maximum(x, 0.0)
         i += 1
     T, h, w, c = x.shape
     if "fp_temperature" in params:                                  # feature points: (T, 2 * 40)

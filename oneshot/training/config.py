@@ -27,12 +27,20 @@ class TrainConfig:
     alpha: float = 0.001                     # inner step size (MIL reaching: 0.001)
     lr: float = 1e-3                         # Adam step size (Adam's default)
     lr_schedule: str = "constant"            # "constant" (MIL) or "cosine": lr -> 0 over `iterations`
-    clip: float = 10.0                       # meta-gradient clipped to [-clip, clip] (MIL: 10)
+    clip: float = 10.0                       # meta-gradient clipped to [-clip, clip] (MIL paper: 10; 0: off, as
+                                             # MIL's released code)
     first_order: bool = False                # first-order MAML approximation, for comparison
     bias_transform: int = 0                  # size of the bias-transformation vector (0: off)
     feature_points: bool = False             # spatial soft-argmax instead of flattening (an option)
     inner_params: str = "all"                # which parameters eq. (1) adapts: "all" (MIL), "conv" (the
                                              # convolutions) or "conv0" (the first convolution only)
+    never_adapt: tuple = ()                  # key prefixes eq. (1) never adapts, whatever inner_params says
+                                             # (released code: the layer norm's offsets, ("ln",))
+    inner_clip: float = 0.0                  # eq. (1)'s gradient clipped elementwise to [-c, c] (0: off; released
+                                             # code: 20, `--clip=True --clip_min=-20 --clip_max=20`)
+    inner_loss_scale: float = 1.0            # eq. (1) descends inner_loss_scale x eq. (2) (1: eq. (2) summed; the
+                                             # released code's mean((100 du)^2) over 20 frames x 2 torques: 250)
+    layer_norm: bool = False                 # layer norm (offset only) after each convolution (released: on)
     ema: float = 0.0                         # decay of a moving average of the parameters (Polyak
                                              # averaging; 0: off), which evaluation then uses
     learn_alpha: bool = False                # Meta-SGD: meta-learn one step size per adapted element,
@@ -72,6 +80,15 @@ PROFILES = {
     # The paper's inner loop taken literally (3 steps of 0.001 on every parameter of eq. 2 as we sum
     # it) for the paper's 30000 iterations; with a bias transformation; with feature points too.
     "literal": dataclasses.replace(_MIL, iterations=30000, eval_every=1000),
+    # MIL's released code for simulated reaching (tianheyu927/mil, scripts/run_sim_vision_reach.sh, mil.py,
+    # tf_utils.py) as far as our world allows, on the seed paper's widths (3 conv of 40, 4 dense of 100):
+    # ONE inner step of 0.001 on every parameter of the released loss mean((100 du)^2) (250 x eq. (2) at
+    # T = 20), its gradient clipped to [-20, 20] (--clip); layer norm after each convolution, offsets never
+    # adapted (--norm=layer_norm); the conv output flattened (--fp=False); a bias transformation of 10
+    # (--fc_bt); meta-batch 25, Adam 1e-3 without outer clipping, 30000 iterations, no moving average.
+    "released": dataclasses.replace(_MIL, inner_steps=1, alpha=0.001, inner_loss_scale=250.0, inner_clip=20.0,
+                                    layer_norm=True, never_adapt=("ln",), feature_points=False, bias_transform=10,
+                                    meta_batch=25, lr=1e-3, clip=0.0, iterations=30000, eval_every=1000),
     "literal-bias": dataclasses.replace(_MIL, bias_transform=10),
     "literal-points": dataclasses.replace(_MIL, bias_transform=10, feature_points=True),
     # Seconds: 20 iterations on 3 colours x 3 demos (tests, and a first look).

@@ -89,8 +89,9 @@ def steps(method, cfg, state, demos, end=None, validation=None, pool=None):
         if not np.isfinite(loss) or bad:
             raise TrainingDiverged(f"the meta-loss became {float(loss)} at iteration {it + 1}"
                                    f"{' (non-finite gradient of ' + ', '.join(bad) + ')' if bad else ''}")
-        params, adam = optim.adam_step(params, inner.clip_gradients(grads, cfg.clip), adam,    # 3. clip, Adam
-                                       learning_rate(cfg, it))
+        if cfg.clip:                                                                       # 3. clip, Adam
+            grads = inner.clip_gradients(grads, cfg.clip)
+        params, adam = optim.adam_step(params, grads, adam, learning_rate(cfg, it))
         if ema is not None:
             ema = update_ema(ema, params, cfg.ema)                                         # 4. average
         done, records = it + 1, []
