@@ -42,7 +42,7 @@ def test_hues_mode_is_the_original_palette_bit_for_bit():
     assert rgb[[0, 1, 5, 16, 47]].tolist() == [[255, 0, 0], [255, 32, 0], [255, 159, 0], [0, 255, 0], [255, 0, 32]]
     assert palette.split_colours("validation").tolist() == list(range(0, 48, 4))
     assert palette.split_colours("train").tolist() == [i for i in range(48) if i % 4]
-    assert (palette.n_grid(), palette.n_colours()) == (48, 84)
+    assert (palette.n_grid(), palette.n_colours()) == (48, 72)
     assert palette.hue_distance_deg(np.arange(48)[:, None], np.arange(48)[None]).sum() == 207360.0
     assert palette.colour_name(4) == "hue 30 deg" and palette.colour_name(5) == "hue 37.5 deg"
 
@@ -209,24 +209,27 @@ def test_a_grid_world_replays_a_scene_with_colours_past_the_hue_count():
 # --- the test split ---------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("mode", palette.MODES)
-def test_the_three_splits_are_disjoint_and_the_test_colours_as_far_from_training_as_validation(mode):
-    """Train, validation and test colours share no index and no RGB colour; test colours are of the
-    held-out hues, so as far in hue from every training colour as the validation colours (7.5 deg in the
-    hues palette, 10 in the grid), and at the documented RGB distances (module docstring)."""
+def test_the_three_splits_are_disjoint_and_the_test_colours_at_their_documented_distances(mode):
+    """Train, validation and test colours share no index and no RGB colour. In the grid the test colours
+    are of the held-out hues, as far in hue from every training colour as the validation colours (10
+    deg); the hues palette's are the fully saturated hues half-way between (3.75 deg from both). RGB
+    distances as the module docstring states them."""
     cfg = PaletteConfig(mode=mode)
     rgb = palette.palette_rgb(cfg)
     train, val, test = (palette.split_colours(s, cfg) for s in palette.SPLITS)
-    assert len(test) == (36 if mode == "hues" else 48) and (mode == "hues" or len(test) >= 36)
+    assert len(test) == (24 if mode == "hues" else 48) and (mode == "hues" or len(test) >= 36)
     assert not (set(train) & set(val) or set(train) & set(test) or set(val) & set(test))
     assert not ({tuple(c) for c in rgb[test]} & {tuple(c) for c in rgb[np.concatenate([train, val])]})
     hue = lambda a, b: palette.hue_distance_deg(a[:, None], b[None], cfg).min()
-    assert hue(test, train) == hue(val, train) == (7.5 if mode == "hues" else 10)
+    assert (hue(test, train), hue(val, train)) == ((3.75, 7.5) if mode == "hues" else (10, 10))
     assert set(palette.colour_hue(test, cfg).tolist()) == set(palette.colour_hue(val, cfg).tolist())
-    documented = {"hues": (51.4, 51.0), "grid": (26.9, 27.7)}[mode]
+    if mode == "hues":                                   # of the palette's kind: fully saturated and bright
+        assert np.all(rgb[test].max(axis=1) == 255) and np.all(rgb[test].min(axis=1) == 0)
+    documented = {"hues": (16.0, 15.0), "grid": (26.9, 27.7)}[mode]
     assert rgb_distances(rgb[test], rgb[train]).min() == pytest.approx(documented[0], abs=0.05)
     assert rgb_distances(rgb[test], rgb[val]).min() == pytest.approx(documented[1], abs=0.05)
-    # a wrong split would fail: the validation colours are nearer the training colours than that
-    assert rgb_distances(rgb[val], rgb[train]).min() < documented[0]
+    # a wrong split would fail: validation and test are as documented, not the other way round
+    assert rgb_distances(rgb[val], rgb[train]).min() == pytest.approx(31.0 if mode == "hues" else 12.0, abs=0.05)
 
 
 def test_a_test_scene_draws_its_distractors_from_the_test_colours():
@@ -238,5 +241,7 @@ def test_a_test_scene_draws_its_distractors_from_the_test_colours():
         assert palette.hue_distance_deg(colours[:, None], colours[None], GRID)[np.triu_indices(3, 1)].min() >= 60
     with pytest.raises(ValueError, match="is not a 'test' colour"):
         palette.sample_scene_colours(0, 3, "test", rng, GRID)
-    with pytest.raises(ValueError, match="test_levels"):
-        PaletteConfig(mode="grid", test_levels=((1.0, 1.0),))     # a validation colour's levels
+    with pytest.raises(ValueError, match="test_colours"):
+        PaletteConfig(mode="grid", test_colours=((0.0, 1.0, 1.0),))     # a validation colour itself
+    with pytest.raises(ValueError, match="test_colours"):
+        PaletteConfig(test_colours=((7.5, 1.0, 1.0),))                  # a training hue

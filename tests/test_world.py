@@ -78,7 +78,7 @@ def test_scenes_are_reachable_separated_and_distinguishable():
 def test_palette_splits_never_overlap():
     train, held, test = (palette.split_colours(s) for s in ("train", "validation", "test"))
     assert not set(train) & set(held) and not set(test) & (set(train) | set(held))
-    assert len(train) + len(held) + len(test) == palette.n_colours() == 84
+    assert len(train) + len(held) + len(test) == palette.n_colours() == 72
     assert len(np.unique(palette.palette_rgb(), axis=0)) == palette.n_colours()
 
 

@@ -8,9 +8,10 @@ scored once per trained policy. Validation and test colours are of the held-out 
 
 - "hues" (the default, and the shipped policy's): 48 fully saturated hues, 7.5 degrees apart. Every
   4th hue (0, 30, ..., 330 degrees) is held out: 36 meta-training colours and 12 validation colours,
-  each 7.5 degrees of hue from the nearest training colour. The 36 test colours are the 12 held-out
-  hues at (saturation, value) (0.8, 1.0), (1.0, 0.8) and (0.8, 0.8): as far in hue from training
-  colours as the validation colours, and never fully saturated and bright like every training colour.
+  each 7.5 degrees of hue from the nearest training colour. The 24 test colours are the fully saturated
+  hues half-way between each held-out hue and its two training neighbours (3.75 and 26.25 degrees past
+  each multiple of 30): of the palette's kind, but, the 7.5-degree wheel being full, 3.75 degrees from a
+  training colour, nearer than the validation colours are.
 - "grid": hue x saturation x value. 72 hues 5 degrees apart x saturations (1.0, 0.75, 0.5) x values
   (1.0, 0.8, 0.6) = 648 colours. The held-out hues are again every 30 degrees (0, 30, ..., 330, the
   same 12 hues as "hues" mode), with all 9 of their saturation/value variants: 108 held-out colours.
@@ -25,8 +26,8 @@ Minimum distances, RGB 0-255, Euclidean, over every pair (`tests/test_palette.py
 
                                                    grid    hues
     any validation colour to any training colour   12.0    31.0   (grid: hues 10 deg apart, sat 0.5, val 0.6)
-    any test colour to any training colour         26.9    51.4   (hues 10 and 7.5 deg apart, as validation)
-    any test colour to any validation colour       27.7    51.0   (the same hue, one level apart)
+    any test colour to any training colour         26.9    16.0   (grid: 10 deg apart as validation; hues: 3.75)
+    any test colour to any validation colour       27.7    15.0   (grid: the same hue, a level apart; hues: 3.75)
     any two training colours                        6.0    32.0   (grid: hues 5 deg apart, sat 0.5, val 0.6)
     training colours that can share a scene        56.8   185.7   (>= 60 deg apart in hue)
     any colour to the black background              153     255
@@ -45,7 +46,7 @@ distractors are clearly different colours even at low saturation.
 
 Colour indices are plain ints 0 .. n_colours(cfg) - 1. The grid's come first, hue-major: index = hue *
 per_hue + variant, with variant = saturation level * len(values) + value level; then the test colours,
-held-out hue by held-out hue, `test_levels` each. In "hues" mode per_hue is 1, so an index below 48 is
+held-out hue by held-out hue, `test_colours` each. In "hues" mode per_hue is 1, so an index below 48 is
 its hue, and every colour has the index it had before the test split existed.
 """
 import colorsys
@@ -60,9 +61,10 @@ MODES = ("hues", "grid")
 # The defaults each mode gives the fields left at None (see PaletteConfig).
 _DEFAULTS = {
     "hues": {"size": 48, "heldout_every": 4, "saturations": (1.0,), "values": (1.0,), "guard": 0,
-             "test_levels": ((0.8, 1.0), (1.0, 0.8), (0.8, 0.8))},
+             "test_colours": ((-3.75, 1.0, 1.0), (3.75, 1.0, 1.0))},
     "grid": {"size": 72, "heldout_every": 6, "saturations": (1.0, 0.75, 0.5), "values": (1.0, 0.8, 0.6),
-             "guard": 1, "test_levels": ((0.875, 0.9), (0.875, 0.7), (0.625, 0.9), (0.625, 0.7))},
+             "guard": 1, "test_colours": ((0.0, 0.875, 0.9), (0.0, 0.875, 0.7), (0.0, 0.625, 0.9),
+                                          (0.0, 0.625, 0.7))},
 }
 
 
@@ -79,7 +81,7 @@ class PaletteConfig:
     saturations: tuple = None         # saturation levels of every hue ((1.0,); grid (1.0, 0.75, 0.5))
     values: tuple = None              # value (brightness) levels ((1.0,); grid (1.0, 0.8, 0.6))
     guard: int = None                 # hues either side of a held-out hue used by neither split (0; grid 1)
-    test_levels: tuple = None         # (saturation, value) pairs of the test colours, at every held-out hue
+    test_colours: tuple = None        # (hue offset deg, saturation, value) of the test colours at each held-out hue
 
     def __post_init__(self):
         if self.mode not in MODES:
@@ -92,12 +94,14 @@ class PaletteConfig:
             if not levels or not all(0 < x <= 1 for x in levels):
                 raise ValueError(f"palette {name} must be a non-empty sequence in (0, 1]; got {levels}")
             object.__setattr__(self, name, levels)
-        pairs = tuple(tuple(float(x) for x in pair) for pair in self.test_levels)
-        if not pairs or not all(len(p) == 2 and all(0 < x <= 1 for x in p) for p in pairs) or \
-                set(pairs) & {(s, v) for s in self.saturations for v in self.values}:
-            raise ValueError(f"palette test_levels must be (saturation, value) pairs in (0, 1], none of them a "
-                             f"validation colour's; got {self.test_levels}")
-        object.__setattr__(self, "test_levels", pairs)
+        triples = tuple(tuple(float(x) for x in t) for t in self.test_colours)
+        step = 360.0 / self.size
+        if not triples or not all(len(t) == 3 and abs(t[0]) < step and 0 < t[1] <= 1 and 0 < t[2] <= 1 for t in triples) \
+                or {(0.0, s, v) for s in self.saturations for v in self.values} & set(triples):
+            raise ValueError(f"palette test_colours must be (hue offset deg, saturation, value) triples, the offset "
+                             f"under one hue step ({step:g} deg) and the levels in (0, 1], none of them a validation "
+                             f"colour; got {self.test_colours}")
+        object.__setattr__(self, "test_colours", triples)
         if self.size < 1 or self.heldout_every < 1 or self.guard < 0:
             raise ValueError(f"palette needs size >= 1, heldout_every >= 1 and guard >= 0; "
                              f"got {self.size}, {self.heldout_every}, {self.guard}")
@@ -123,30 +127,38 @@ def heldout_hues(cfg=PaletteConfig()):
 
 
 def n_colours(cfg=PaletteConfig()):
-    """How many colours the palette has (84; the default grid 696). Indices run 0 .. n_colours - 1."""
-    return n_grid(cfg) + len(heldout_hues(cfg)) * len(cfg.test_levels)
+    """How many colours the palette has (72; the default grid 696). Indices run 0 .. n_colours - 1."""
+    return n_grid(cfg) + len(heldout_hues(cfg)) * len(cfg.test_colours)
 
 
 def colour_hue(i, cfg=PaletteConfig()):
-    """The hue column (0 .. size - 1) of palette index i (broadcasts); its angle is 360 hue / size deg."""
+    """The hue column (0 .. size - 1) of palette index i (broadcasts): its own, or a test colour's held-out
+    hue (the test colour lies `test_colours` degrees from it). Its angle is 360 hue / size deg."""
     i, grid = np.asarray(i), n_grid(cfg)
-    test = heldout_hues(cfg)[np.maximum(i - grid, 0) // len(cfg.test_levels) % len(heldout_hues(cfg))]
+    test = heldout_hues(cfg)[np.maximum(i - grid, 0) // len(cfg.test_colours) % len(heldout_hues(cfg))]
     return np.where(i < grid, i // per_hue(cfg), test)
+
+
+def colour_hue_deg(i, cfg=PaletteConfig()):
+    """The hue angle in degrees, [0, 360), of palette index i (broadcasts)."""
+    i = np.asarray(i)
+    offsets = np.array([t[0] for t in cfg.test_colours])[np.maximum(i - n_grid(cfg), 0) % len(cfg.test_colours)]
+    return (colour_hue(i, cfg) * 360.0 / cfg.size + np.where(i < n_grid(cfg), 0.0, offsets)) % 360.0
 
 
 def colour_levels(i, cfg=PaletteConfig()):
     """(saturation, value) of palette index i (a Python int)."""
     i = int(i)
     if i >= n_grid(cfg):
-        return cfg.test_levels[(i - n_grid(cfg)) % len(cfg.test_levels)]
+        return cfg.test_colours[(i - n_grid(cfg)) % len(cfg.test_colours)][1:]
     s, v = divmod(i % per_hue(cfg), len(cfg.values))
     return cfg.saturations[s], cfg.values[v]
 
 
 def palette_rgb(cfg=PaletteConfig()):
-    """All palette colours. Returns (n_colours, 3) uint8; row i is hue 360 colour_hue(i) / size degrees
-    at saturation and value colour_levels(i)."""
-    rgb = [colorsys.hsv_to_rgb(int(colour_hue(i, cfg)) / cfg.size, *colour_levels(i, cfg))
+    """All palette colours. Returns (n_colours, 3) uint8; row i is hue colour_hue_deg(i) at saturation
+    and value colour_levels(i)."""
+    rgb = [colorsys.hsv_to_rgb(float(colour_hue_deg(i, cfg)) / 360.0, *colour_levels(i, cfg))
            for i in range(n_colours(cfg))]
     return np.round(np.array(rgb) * 255).astype(np.uint8)
 
@@ -173,16 +185,16 @@ def split_colours(split, cfg=PaletteConfig()):
 
 def hue_distance_deg(i, j, cfg=PaletteConfig()):
     """Angular distance in degrees between the hues of palette indices i and j (broadcasts)."""
-    k = np.abs(colour_hue(i, cfg) - colour_hue(j, cfg)) % cfg.size
-    return np.minimum(k, cfg.size - k) * 360.0 / cfg.size
+    k = np.abs(colour_hue_deg(i, cfg) - colour_hue_deg(j, cfg)) % 360.0
+    return np.minimum(k, 360.0 - k)
 
 
 def colour_name(i, cfg=PaletteConfig()):
     """A short name for pictures and tables: "hue 30 deg"; in grid mode "hue 30 deg, sat 0.75, val 0.8"."""
     if not 0 <= i < n_colours(cfg):
         raise ValueError(f"colour {i!r} is not a palette index in [0, {n_colours(cfg)})")
-    name = f"hue {360 * int(colour_hue(i, cfg)) / cfg.size:g} deg"
-    if cfg.mode == "hues" and i < n_grid(cfg):
+    name = f"hue {float(colour_hue_deg(i, cfg)):g} deg"
+    if cfg.mode == "hues":
         return name
     s, v = colour_levels(i, cfg)
     return f"{name}, sat {s:g}, val {v:g}"
