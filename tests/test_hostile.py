@@ -154,7 +154,7 @@ def test_evaluate_names_every_missing_dataset_in_one_message_with_the_commands(c
     line, out = refused(capsys, evaluate.main, [tiny_checkpoint, "--split", "test", "--test", str(tmp_path / "t.npz"),
                                                 "--train", str(tmp_path / "tr.npz")])
     assert line.count("python -m oneshot.collect") == 2 and " && " in line
-    assert f"--out {tmp_path / 't.npz'} --split test --tasks 36 --demos 2 --seed 2" in line
+    assert f"--out {tmp_path / 't.npz'} --split test --tasks 24 --demos 2 --seed 2" in line
     assert f"--out {tmp_path / 'tr.npz'} --split train --tasks 36 --demos 3 --seed 0" in line and out == ""
 
 
