@@ -62,6 +62,10 @@ def main(argv=None):
                  if getattr(args, f.name) is not None}
     profile = args.profile or "default"
     run = args.run or os.path.join("runs", profile)
+    try:                                       # before any work: a run folder that can be made
+        cli.writable_folder(run)
+    except argparse.ArgumentTypeError as e:
+        p.error(f"argument --run: {e}")
     if args.resume and args.profile is None:   # the run's own config; flags may change only RESUMABLE fields
         cfg = dataclasses.replace(checkpoint.load(os.path.join(run, "checkpoint.npz"))["config"], **overrides)
     elif args.resume:                          # the profile named, as the checkpoint has what may change
@@ -87,6 +91,10 @@ def main(argv=None):
             path, demos, _ = run_data.spec(cfg, split)
             flag = f"--{split}-demos"
             if not os.path.exists(path):
+                try:                           # a dataset to collect: where it goes must take it
+                    cli.writable_file(path)
+                except argparse.ArgumentTypeError as e:
+                    p.error(f"argument --{split}-data: {e}")
                 tasks = len(palette.split_colours(split, world.palette))
                 cli.check_memory(cli.dataset_bytes(tasks, demos, world.horizon, world.image_size, world.n_objects),
                                  f"collecting the missing {path} ({tasks} tasks x {demos} demos)",

@@ -16,6 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from oneshot.expert import controller
+from oneshot.tools.host import die_with_parent
 from oneshot.world import palette
 from oneshot.world.reach import ReachWorld, WorldConfig
 
@@ -59,10 +60,11 @@ def _demo_job(job):
                        f"use a longer --horizon (the default is {WorldConfig().horizon}){noise}")
 
 
-def _ignore_sigint():
-    """Pool initializer: workers ignore Ctrl-C (the terminal sends it to the whole process group), so
-    only the parent stops, and terminates them, instead of every worker printing a traceback. (A pool's
-    workers end by themselves when the parent is killed outright: measured, they are gone within 2 s.)"""
+def _worker_start(parent):
+    """Pool initializer: workers end with the parent however it ends (`host.die_with_parent`), and ignore
+    Ctrl-C (the terminal sends it to the whole process group), so only the parent stops, and terminates
+    them, instead of every worker printing a traceback."""
+    die_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)        # terminate() ends them quietly, whatever the parent's handler
 
@@ -89,7 +91,7 @@ def collect(n_tasks, demos_per_task, split="train", seed=0, workers=None, world_
     bar = tqdm(total=len(jobs), desc=f"collecting {split} demos", unit="demo", disable=not progress)
     try:
         # leaving the `with` on an error or Ctrl-C terminates the pool's workers and waits for them
-        pool = (multiprocessing.get_context("fork").Pool(workers, _ignore_sigint) if workers > 1
+        pool = (multiprocessing.get_context("fork").Pool(workers, _worker_start, (os.getpid(),)) if workers > 1
                 else _Serial())
         with pool:
             for i, k, d, s, failed in pool.imap_unordered(_demo_job, jobs, chunksize=8):

@@ -13,6 +13,7 @@ and writing).
 import argparse
 import math
 import os
+import signal
 import sys
 import tempfile
 
@@ -110,6 +111,12 @@ def _check_folder(folder, path):
     existing = folder
     while not os.path.exists(existing):                  # the nearest existing ancestor
         existing = os.path.dirname(existing)
+    name_max = os.pathconf(existing, "PC_NAME_MAX") if os.path.isdir(existing) else 255
+    too_long = [part for part in os.path.relpath(folder, existing).split(os.sep) if len(os.fsencode(part)) > name_max]
+    if too_long or len(os.fsencode(folder)) >= os.pathconf("/", "PC_PATH_MAX"):
+        what = f"its name {too_long[0][:20]}... has {len(os.fsencode(too_long[0]))} bytes, more than the {name_max} a name " \
+               f"may have here" if too_long else "the path is longer than this system allows"
+        raise argparse.ArgumentTypeError(f"cannot write {path!r}: {what}; choose a shorter path")
     if not os.path.isdir(existing):
         raise argparse.ArgumentTypeError(f"cannot write {path!r}: {existing!r} is a file, not a folder")
     try:                                                 # try it: os.access says yes to root on a
@@ -173,9 +180,11 @@ def run(main, argv=None, failures=()):
              bad input; the message says what and how to fix it
         1    the `failures` types (e.g. loop.TrainingDiverged, shards.ShardError) and other OSError;
              lines after the first of their message (a worker's traceback) are printed after it
-        130  KeyboardInterrupt ("interrupted", or its message: e.g. where training saved its checkpoint)
+        130  KeyboardInterrupt ("interrupted", or its message: e.g. where training saved its checkpoint);
+             a plain kill (SIGTERM) is handled as Ctrl-C
     Anything else is a bug, and keeps its traceback.
     """
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         return main(argv)
     except KeyboardInterrupt as e:             # its message, if any, says what was saved
@@ -184,6 +193,12 @@ def run(main, argv=None, failures=()):
         _exit(" ".join(_lines(e)), 2)
     except (*failures, OSError) as e:
         _exit("\n".join(_lines(e)), 1)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
 
 
 def _lines(error):

@@ -1,0 +1,106 @@
+"""Round 3 of hostile inputs and faults (issue 30, classes 4-6; issue 31, researchers): processes end
+with one line however they are stopped, paths are checked before any work, a torn or foreign log line is
+named (and a torn last line forgiven), and a run resumes with its own config from a bare `--resume`."""
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from oneshot import train
+from oneshot.training import checkpoint, config, run_folder
+
+
+@pytest.fixture
+def smoke(tiny_split_datasets):
+    paths = tiny_split_datasets
+    return dataclasses.replace(config.PROFILES["smoke"], train_data=paths["train"], validation_data=paths["validation"],
+                               test_data=paths["test"], iterations=2, checkpoint_every=1)
+
+
+def refused(capsys, argv):
+    with pytest.raises(SystemExit) as stop:
+        train.main(argv)
+    assert stop.value.code == 2
+    return capsys.readouterr().err.strip().splitlines()
+
+
+def test_a_plain_kill_of_collect_is_one_line_and_ends_its_workers(tmp_path):
+    command = [sys.executable, "-m", "oneshot.collect", "--out", str(tmp_path / "d.npz"), "--tasks", "36",
+               "--demos", "24", "--workers", "2"]
+    parent = subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        time.sleep(2.5)
+        children = subprocess.run(["pgrep", "-P", str(parent.pid)], capture_output=True, text=True).stdout.split()
+        assert children, "the collect never started its workers"
+        parent.send_signal(signal.SIGTERM)
+        _, err = parent.communicate(timeout=30)
+    finally:
+        parent.kill()
+    assert parent.returncode == 130 and err.rstrip().endswith("error: interrupted") and "Traceback" not in err
+    deadline = time.time() + 5
+    while time.time() < deadline and any(os.path.exists(f"/proc/{c}") for c in children):
+        time.sleep(0.1)
+    assert not any(os.path.exists(f"/proc/{c}") for c in children), "a worker outlived the collect"
+    assert not (tmp_path / "d.npz").exists()                       # nothing half-written
+
+
+def test_a_run_folder_with_too_long_a_name_is_refused_before_any_folder_is_made(capsys, tmp_path):
+    run = tmp_path / "/".join(["a"] * 20) / ("b" * 300)
+    lines = refused(capsys, ["--profile", "smoke", "--run", str(run)])
+    assert len(lines) == 1 and "argument --run" in lines[0] and "more than the 255 a name may have" in lines[0]
+    assert not (tmp_path / "a").exists()
+
+
+def test_a_dataset_that_cannot_be_written_is_refused_before_collecting(capsys, tmp_path):
+    (tmp_path / "file").write_text("")
+    lines = refused(capsys, ["--profile", "smoke", "--run", str(tmp_path / "run"),
+                             "--train-data", str(tmp_path / "file" / "t.npz")])
+    assert len(lines) == 1 and "argument --train-data: cannot write" in lines[0] and "is a file" in lines[0]
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("damage, says", [
+    (b'{"iteration": 2, "meta_l', None),                                          # torn last line: forgiven
+    (b'{"iteration": 1, "meta_loss": 1.0}\n{"iteration": 2, "meta_l\n', "log.jsonl:2 is not a log record"),
+    (b'{"meta_loss": 1.0}\n', "log.jsonl:1 is not a log record"),                  # no "iteration"
+    (b'{"iteration": "4"}\n', "log.jsonl:1 is not a log record"),
+])
+def test_a_damaged_log_is_named_with_its_line_and_a_torn_last_line_forgiven(smoke, tmp_path, damage, says):
+    run = tmp_path / "run"
+    run_folder.train(smoke, run, progress=False, stop_after=1)
+    log = run / "log.jsonl"
+    kept = log.read_bytes()
+    log.write_bytes((b"" if says else kept) + damage)
+    if says is None:
+        run_folder.train(smoke, run, resume=True, progress=False)
+        lines = log.read_text().splitlines()
+        assert [json.loads(line)["iteration"] for line in lines] == [1, 2]           # the torn line dropped
+    else:
+        with pytest.raises(ValueError, match=f"{says}.*the checkpoint is fine: move .*log.jsonl away"):
+            run_folder.train(smoke, run, resume=True, progress=False)
+
+
+def test_resuming_past_the_asked_iterations_says_so_instead_of_claiming_work(capsys, smoke, tmp_path):
+    run_folder.train(smoke, tmp_path / "run", progress=False)                   # at iteration 2
+    with pytest.raises(ValueError, match=r"is at iteration 2, past --iterations 1: nothing to train"):
+        run_folder.train(dataclasses.replace(smoke, iterations=1), tmp_path / "run", resume=True, progress=False)
+
+
+def test_a_bare_resume_continues_a_smoke_run_with_its_own_config(capsys, smoke, tmp_path):
+    """`train --run R --resume` of a run not trained with the default profile: the checkpoint's own
+    config (its datasets too), not the default profile's, and no data collected first."""
+    run = tmp_path / "run"
+    train.main(["--profile", "smoke", "--run", str(run), "--train-data", smoke.train_data, "--validation-data",
+                smoke.validation_data, "--iterations", "1"])
+    capsys.readouterr()
+    train.main(["--run", str(run), "--resume", "--iterations", "2"])
+    out, err = capsys.readouterr()
+    assert "trained 2 meta-iterations" in out and "collecting" not in err
+    ckpt = checkpoint.load(run / "checkpoint.npz")
+    assert ckpt["iteration"] == 2 and ckpt["config"] == dataclasses.replace(
+        config.PROFILES["smoke"], train_data=smoke.train_data, validation_data=smoke.validation_data, iterations=2)
