@@ -104,3 +104,14 @@ def test_a_bare_resume_continues_a_smoke_run_with_its_own_config(capsys, smoke, 
     ckpt = checkpoint.load(run / "checkpoint.npz")
     assert ckpt["iteration"] == 2 and ckpt["config"] == dataclasses.replace(
         config.PROFILES["smoke"], train_data=smoke.train_data, validation_data=smoke.validation_data, iterations=2)
+
+
+def test_a_clone_named_oneshot_works_from_its_parent_folder(tmp_path):
+    """With an editable install, Python finds a clone named `oneshot` in the current folder before the
+    installed package and took it (its data/ folder too) for the package: commands crashed run from the
+    clone's parent folder. The repository root hands over to the real package (its __init__.py)."""
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    (tmp_path / "oneshot").symlink_to(repo, target_is_directory=True)      # the clone, as its parent sees it
+    done = subprocess.run([sys.executable, "-c", "import oneshot, oneshot.data.datasets as d, oneshot.train; "
+                           "print(oneshot.__version__, d.__name__)"], cwd=tmp_path, capture_output=True, text=True)
+    assert done.returncode == 0 and done.stdout.split() == ["0.1.0", "oneshot.data.datasets"], done.stderr
