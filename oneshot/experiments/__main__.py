@@ -25,6 +25,7 @@ be a module-level function (it is pickled) and write only inside its `run_dir`.
 import argparse
 import contextlib
 import dataclasses
+import json
 import os
 import shlex
 import signal
@@ -97,7 +98,12 @@ def main(argv=None):
                        help='run on a running Dask scheduler, e.g. tcp://host:8786 (pip install ".[cluster]")')
     where.add_argument("--local-cluster", type=int, default=None, metavar="N",
                        help='start a Dask cluster of N one-thread worker processes here (pip install ".[cluster]")')
+    r = commands.add_parser("summarise", help="the summary and figure of a results folder from its runs.csv, "
+                                              "with today's intervals (no run is done)")
+    r.add_argument("results", help="a results folder holding runs.csv and summary.json, e.g. results/fig2_paper")
     args = p.parse_args(argv)
+    if args.experiment == "summarise":
+        return _summarise(args.results, argv)
     if args.local_cluster is not None and args.local_cluster < 1:
         f.error(f"--local-cluster must be >= 1; got {args.local_cluster}")
     if (args.scheduler or args.local_cluster) and distributed is None:
@@ -157,6 +163,31 @@ def main(argv=None):
         print(f"figure: {os.path.join(out, f'fig2{part}.png')}")
     if args.compare:
         return _compare(rows, args.compare)
+    return 0
+
+
+def _summarise(folder, argv):
+    """Summarise a results folder again from its runs.csv, keeping its summary's config and command and
+    recording this one (`summarise`, `plot`)."""
+    rows = read_rows(os.path.join(folder, "runs.csv"))
+    if not rows:
+        print(f"error: {folder} holds no runs.csv rows to summarise", file=sys.stderr)
+        return 2
+    with open(os.path.join(folder, "summary.json")) as f:
+        before = json.load(f)
+    lines = [m for m in before.get("config", {}).get("methods", LINES) if m in LINES]
+    adapts = lambda line: methods.of(LINES[line]).adapts
+    summary = summarise(rows, None, before.get("command"), [(a, b) for a in lines if adapts(a) for b in lines
+                                                             if not adapts(b)])
+    config = dict(before.get("config") or {})
+    config.setdefault("score", "validation")   # a sweep from before the test split scored what is now validation
+    summary.update(config=config, summarised_by="python -m oneshot.experiments " + shlex.join(argv))
+    write_summary(summary, os.path.join(folder, "summary.json"))
+    print(f"{len(rows)} runs: {os.path.join(folder, 'summary.json')}")
+    if PLOTS:
+        name = (before.get("config") or {}).get("name", "")
+        plot(summary, os.path.join(folder, "fig2.png"), {m: LABELS.get(m, m) for m in LINES},
+             title=f"Figure 2 ({name} profile, {len({r['seed'] for r in rows})} seeds)")
     return 0
 
 
