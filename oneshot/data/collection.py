@@ -1,11 +1,9 @@
-"""Collect expert demonstrations into a dataset: `python -m oneshot.collect --help`.
+"""Collecting demonstrations (paper Section IV): the expert records N tasks (distinct target colours of
+one split) x K demos per task on every core, `collect`; `python -m oneshot.collect` is the command.
 
-N tasks (distinct target colours of one split) x K demos per task, each demo a fresh scene. Every
-demo's scene seed is derived from (seed, task, demo, attempt), so the dataset, and the saved file
-byte for byte, is the same whatever the number of worker processes (the time taken and the workers
-are printed, not stored). A demo the expert fails is retried on a fresh scene and counted in the
-metadata ("failed_attempts"); a horizon too short for the expert fails every scene, which is an
-error (ExpertFailed) that asks for a longer one. Ctrl-C stops the workers and writes nothing.
+Every demo's scene seed is derived from (seed, task, demo, attempt) (`scene_seed`), so the dataset is
+the same whatever the number of worker processes. A demo the expert fails is retried on a fresh scene
+and counted in the metadata; a horizon too short for the expert fails every scene (ExpertFailed).
 """
 import dataclasses
 import multiprocessing

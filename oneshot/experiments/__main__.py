@@ -1,24 +1,25 @@
-"""The paper's experiments (Section IV): `python -m oneshot.experiments fig2 --profile quick|paper`.
+"""The paper's experiments (Section IV): `python -m oneshot.experiments fig2 --profile quick|paper|...`.
 
-Figure 2 of the paper: one-shot success on held-out colours versus the size of the meta-training
-dataset, one line per method. A *run* is one method trained on one dataset size (colours x demos per
-colour) with one seed, then scored on the same held-out trials:
+Figure 2: one-shot success against the size of the meta-training dataset, one line per method, each
+run scored on the profile's split (`oneshot.experiments.fig2`):
 
     python -m oneshot.experiments fig2 --profile quick                    # 2 runs at a time, this machine
-    python -m oneshot.experiments fig2 --profile paper --workers 4
     python -m oneshot.experiments fig2 --profile paper --seeds 0          # one seed's figure first
     python -m oneshot.experiments fig2 --profile paper --local-cluster 4   # Dask, pip install ".[cluster]"
     python -m oneshot.experiments fig2 --profile paper --scheduler tcp://host:8786
+    python -m oneshot.experiments fig2 --profile quick --compare results/fig2_quick   # check a reproduction
+    python -m oneshot.experiments summarise results/fig2_paper            # summary and figure from runs.csv
 
-It writes `results/fig2_<profile>/` where it runs (or `--out`): runs.csv (one row per finished run), summary.json (per method
-and size: the mean over seeds, a 95% Wilson interval on the pooled trials, the range over seeds) and
-fig2.png (pip install ".[plots]"), only once every run of the profile has finished; `--seeds 0` does
-the runs of seed 0 alone and writes summary_seeds0.json and fig2_seeds0.png. Each run works in `runs/fig2/<run id>/` (profiles share the folder:
-the run id names everything a run depends on, so a run two profiles share is done once). Run the same
-command again to resume: finished runs (rows of runs.csv) are skipped, failed or interrupted ones are
-run again, from their own checkpoints.
+It writes `results/fig2_<profile>/` where it runs (or `--out`): runs.csv (one row per finished run),
+summary.json (per line and size: the mean over seeds and its 95% interval over seeds and scored
+colours, paired differences between lines; `oneshot.experiments.stats`) and fig2.png (pip install
+".[plots]"), once every run of the profile has finished; `--seeds 0` does the runs of seed 0 alone and
+writes summary_seeds0.json and fig2_seeds0.png. Each run works in `runs/fig2/<run id>/` (the run id
+names everything a run depends on). Run the same command again to resume: done runs are skipped,
+interrupted ones continue from their own checkpoints; rows this work folder did not produce (e.g. the
+committed ones of a clone) are run again, never counted as done.
 
-A sweep takes any `concurrent.futures.Executor` (a process pool by default; a thread pool; Dask's
+A sweep takes any `concurrent.futures.Executor` (a process pool by default; Dask's
 `Client.get_executor()`), so the function that performs one run, `run_fn(spec, run_dir, context)`, must
 be a module-level function (it is pickled) and write only inside its `run_dir`.
 """

@@ -1,26 +1,9 @@
-"""The paper's experiments (Section IV): `python -m oneshot.experiments fig2 --profile quick|paper`.
-
-Figure 2 of the paper: one-shot success on held-out colours versus the size of the meta-training
-dataset, one line per method. A *run* is one method trained on one dataset size (colours x demos per
-colour) with one seed, then scored on the same held-out trials:
-
-    python -m oneshot.experiments fig2 --profile quick                    # 2 runs at a time, this machine
-    python -m oneshot.experiments fig2 --profile paper --workers 4
-    python -m oneshot.experiments fig2 --profile paper --seeds 0          # one seed's figure first
-    python -m oneshot.experiments fig2 --profile paper --local-cluster 4   # Dask, pip install ".[cluster]"
-    python -m oneshot.experiments fig2 --profile paper --scheduler tcp://host:8786
-
-It writes `results/fig2_<profile>/` where it runs (or `--out`): runs.csv (one row per finished run), summary.json (per method
-and size: the mean over seeds, a 95% Wilson interval on the pooled trials, the range over seeds) and
-fig2.png (pip install ".[plots]"), only once every run of the profile has finished; `--seeds 0` does
-the runs of seed 0 alone and writes summary_seeds0.json and fig2_seeds0.png. Each run works in `runs/fig2/<run id>/` (profiles share the folder:
-the run id names everything a run depends on, so a run two profiles share is done once). Run the same
-command again to resume: finished runs (rows of runs.csv) are skipped, failed or interrupted ones are
-run again, from their own checkpoints.
-
-A sweep takes any `concurrent.futures.Executor` (a process pool by default; a thread pool; Dask's
-`Client.get_executor()`), so the function that performs one run, `run_fn(spec, run_dir, context)`, must
-be a module-level function (it is pickled) and write only inside its `run_dir`.
+"""Figure 2 of the paper (Section IV): one-shot success against the size of the meta-training dataset,
+one line per method. A *run* is one line (a method and its configuration, `LINES`) trained on one
+dataset size (colours x demos per colour) with one seed, then scored on the same trials of the scored
+split (the test colours for a figure, the validation colours for a search or an ablation). A profile
+(`SweepConfig`, `PROFILES`) names the sizes, lines and seeds; `run_one` does one run; the command is
+`python -m oneshot.experiments fig2` (`oneshot/experiments/__main__.py`), the machinery `sweep`.
 """
 import dataclasses
 import os
