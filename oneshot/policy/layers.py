@@ -21,8 +21,12 @@ from autograd.extend import defvjp, defvjp_argnum, primitive
 from autograd.tracer import getval
 
 import autograd.numpy as anp
-from oneshot.policy.affine import add_bias, bias_grad, broadcast_bias, matmul, matmul_dw, matmul_dx  # noqa: F401
-from oneshot.policy.conv import col2im, conv, conv2d, conv_dw, conv_dx, conv_output_size, im2col  # noqa: F401
+from oneshot.policy.affine import add_bias, bias_grad, broadcast_bias, matmul, matmul_dw, matmul_dx
+from oneshot.policy.conv import col2im, conv, conv2d, conv_dw, conv_dx, conv_output_size, im2col
+
+__all__ = ["add_bias", "bias_grad", "broadcast_bias", "matmul", "matmul_dw", "matmul_dx",          # affine
+           "col2im", "conv", "conv2d", "conv_dw", "conv_dx", "conv_output_size", "im2col",          # conv
+           "relu", "mask", "concat_last", "slice_last", "pad_last", "spatial_soft_argmax", "per_frame"]
 
 
 @primitive
