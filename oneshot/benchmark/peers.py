@@ -98,7 +98,7 @@ def _torch(net_cfg, inner):
         p = {k: torch.from_numpy(np.asarray(v)).requires_grad_() for k, v in params.items()}
         value = meta_objective(p, _torch_demos(torch, adapt), _torch_demos(torch, evaluate))
         grads = torch.autograd.grad(value, list(p.values()))
-        return float(value), {k: g.numpy() for k, g in zip(p, grads)}
+        return value.item(), {k: g.numpy() for k, g in zip(p, grads)}
 
     return run
 
