@@ -59,8 +59,8 @@ def main(argv=None):
                    help="BLAS threads of the training process (default: one per core with --shards 1, else 1; "
                         "Figure 2's runs: --shards 1 --blas-threads 1)")
     m.add_argument("--peer", choices=sorted(peers.PEERS), default=None,
-                   help="also time the same second-order meta-gradient in PyTorch or JAX, alternately with ours "
-                        "(pip install -e .[peers])")
+                   help="time the same second-order meta-gradient in PyTorch or JAX instead of ours, on all the "
+                        "cores (pip install -e .[peers]); run it and ours alternately to compare")
     m.add_argument("--breakdown", action="store_true",
                    help="instead: where the time of one process goes (the convolutions' matrix products and "
                         "their transposes, im2col/col2im, other layer primitives, autograd's Python, the "

@@ -45,8 +45,9 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
     blas_threads: BLAS threads of this process (default: one per core with one process, as training;
         with several processes each keeps one, `oneshot.maml.shards`). Figure 2's runs: shards=1,
         blas_threads=1.
-    peer: None, "torch" or "jax": also time the same meta-gradient in that library (`peers`), one of
-        its iterations after each of ours, and report both and their ratio.
+    peer: None, or "torch" or "jax": time the same meta-gradient in that library (`peers`) instead of
+        ours, on all the cores. (Not alternately in one process: each one's threads spin for a while
+        after its work and slow the other down; run the two commands alternately instead.)
     """
     host.tune_malloc()
     method, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
@@ -57,26 +58,27 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
     threads = blas_threads or (1 if method.shards > 1 else cores)
     host.blas_threads(threads)
     ceiling_threads = min(cores, method.shards * threads)
+    B, pool = cfg.meta_batch, None
     if peer is not None:
-        peers.require(peer)
         if not method.adapts:
             raise ValueError("--peer times MIL's meta-gradient; drop --method")
-        peer_step = peers.meta_gradient(peer, net_cfg, method.inner)
-    B = cfg.meta_batch
+        peer_step, ceiling_threads = peers.meta_gradient(peer, net_cfg, method.inner), cores
+
+    def step(a, e):
+        return peer_step(params, a, e) if peer else method.meta_gradient(params, a, e, pool)
+
     host.blas_threads(ceiling_threads)
     ceilings = [sgemm_rate()]
     host.blas_threads(threads)
-    times, peer_times, pool = [], [], method.make_pool()
+    if peer is None:
+        pool = method.make_pool()
+    times = []
     try:
         for _ in range(iterations + 2):
             a, e = synthetic_demos(rng, B, T, image_size), synthetic_demos(rng, B, T, image_size)
             t = time.perf_counter()
-            method.meta_gradient(params, a, e, pool)
+            step(a, e)
             times.append(time.perf_counter() - t)
-            if peer is not None:
-                t = time.perf_counter()
-                peer_step(params, a, e)
-                peer_times.append(time.perf_counter() - t)
     finally:
         if pool is not None:
             pool.close()
@@ -92,9 +94,7 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
               "ceiling_gflop_per_second": round(ceiling, 1), "ceiling_cores": ceiling_threads,
               "percent_of_ceiling": round(100 * flops / 1e9 / s / ceiling, 1)}
     if peer is not None:
-        p = float(np.median(peer_times[2:]))
-        result.update({"peer": peer, "peer_seconds_per_iteration": round(p, 4),
-                       "ours_over_peer": round(s / p, 3)})
+        result.update({"peer": peer, "shards": 1, "blas_threads": None})
     return result
 
 
