@@ -2,8 +2,8 @@
 three primitives (`conv`, `conv_dx`, `conv_dw`) that gather patches a block of images at a time.
 
 Each is checked against the plain composition it replaces, `im2col` then a matrix product (itself
-checked against naive loops in tests/test_layers.py), with blocks small enough that every task spans
-several of them and the last one is partial; against each other by the adjoint identity; and to second
+checked against naive loops in tests/test_layers.py), with blocks of every kind: one for all the
+images, several tasks in one (the last block holding fewer), a task over several; against each other by the adjoint identity; and to second
 order by autograd's recursive gradient check (MAML differentiates the network twice).
 """
 import autograd.numpy as anp
@@ -21,7 +21,7 @@ CASES = [((2, 3, 8, 6, 4), (2, 3, 3, 4, 5), 2), ((5, 8, 8, 3), (3, 3, 3, 4), 2),
          ((2, 3, 9, 8, 2), (5, 5, 2, 3), 3), ((3, 2, 5, 5, 2), (3, 3, 3, 2, 3), 1)]
 
 
-@pytest.fixture(params=[1 << 20, 300], ids=["one block per task", "many blocks"])
+@pytest.fixture(params=[1 << 20, 16000, 300], ids=["one block", "some tasks per block", "one image per block"])
 def blocks(request, monkeypatch):
     monkeypatch.setattr(conv_module, "BLOCK_BYTES", request.param)
 

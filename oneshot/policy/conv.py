@@ -158,15 +158,22 @@ def _layout(x_shape, w_shape, stride, b_shape=None):
 
 
 def _blocks(n, groups, image_bytes):
-    """(start, stop, task) of every block of images: at most BLOCK_BYTES of patches (or one image),
-    never across two tasks."""
+    """The blocks of images, each at most BLOCK_BYTES of patches (or one image), as (start, stop,
+    segments): segments (start, stop, task) are the block's images of each task, one matrix product
+    each. A task larger than a block spans several; smaller ones share one, whole (fewer, larger
+    copies when the layer is small and the tasks many)."""
     per_task, size = n // groups, max(1, BLOCK_BYTES // image_bytes)
-    return [(s, min(s + size, (t + 1) * per_task), t)
-            for t in range(groups) for s in range(t * per_task, (t + 1) * per_task, size)]
+    if per_task > size:
+        return [(s, min(s + size, (t + 1) * per_task), [(s, min(s + size, (t + 1) * per_task), t)])
+                for t in range(groups) for s in range(t * per_task, (t + 1) * per_task, size)]
+    together = size // per_task
+    return [(t * per_task, min(t + together, groups) * per_task,
+             [(u * per_task, (u + 1) * per_task, u) for u in range(t, min(t + together, groups))])
+            for t in range(0, groups, together)]
 
 
 def _patches(x, k, stride, blocks):
-    """For each block, (start, stop, task, cols): the block's `im2col` rows, (images * H_out * W_out,
+    """For each block, (start, stop, segments, cols): the block's `im2col` rows, (images * H_out * W_out,
     k * k * C), in one buffer reused from block to block (use each before taking the next)."""
     n, h, w, c = x.shape
     p, largest = k // 2, max(stop - start for start, stop, _ in blocks)
@@ -176,11 +183,11 @@ def _patches(x, k, stride, blocks):
     patches = as_strided(x_pad, (largest, h_out, w_out, k, k, c), (sn, stride * sh, stride * sw, sh, sw, sc),
                          writeable=False)
     cols = np.empty(patches.shape, x.dtype)
-    for start, stop, task in blocks:
+    for start, stop, segments in blocks:
         f = stop - start
         x_pad[:f, p : p + h, p : p + w] = x[start:stop]
         np.copyto(cols[:f], patches[:f])
-        yield start, stop, task, cols[:f].reshape(-1, k * k * c)
+        yield start, stop, segments, cols[:f].reshape(-1, k * k * c)
 
 
 def _weight(w, task):
@@ -202,11 +209,12 @@ def conv(x, w, b, stride):
     y = np.empty((n * h_out * w_out, m), np.result_type(x, w))
     rows = h_out * w_out
     blocks = _blocks(n, groups, rows * k * k * c * x.itemsize)
-    for start, stop, task, cols in _patches(x.reshape(n, h, wd, c), k, stride, blocks):
-        out = y[start * rows : stop * rows]
-        np.matmul(cols, _weight(weight, task), out=out)
-        if b is not None:
-            out += _bias(b, task)
+    for start, _, segments, cols in _patches(x.reshape(n, h, wd, c), k, stride, blocks):
+        for first, last, task in segments:
+            out = y[first * rows : last * rows]
+            np.matmul(cols[(first - start) * rows : (last - start) * rows], _weight(weight, task), out=out)
+            if b is not None:
+                out += _bias(b, task)
     return y.reshape(x.shape[:-3] + (h_out, w_out, m))
 
 
@@ -220,9 +228,11 @@ def conv_dx(g, w, x_shape, stride):
     dx = np.empty((n, h, wd, c), np.result_type(g, w))
     blocks = _blocks(n, groups, rows * k * k * c * dx.itemsize)
     dcols = np.empty((max(stop - start for start, stop, _ in blocks) * rows, k * k * c), dx.dtype)
-    for start, stop, task in blocks:
+    for start, stop, segments in blocks:
+        for first, last, task in segments:
+            np.matmul(g_rows[first * rows : last * rows], _weight(weight_t, task),
+                      out=dcols[(first - start) * rows : (last - start) * rows])
         d = dcols[: (stop - start) * rows]
-        np.matmul(g_rows[start * rows : stop * rows], _weight(weight_t, task), out=d)
         if (k, stride) == (3, 2) and h % 2 == 0 and wd % 2 == 0:
             _col2im_3x3_stride2(d, (stop - start, h, wd, c), out=dx[start:stop])
         else:
@@ -239,9 +249,11 @@ def conv_dw(x, g, w_shape, stride):
     dw = np.zeros((groups, k * k * c, m), np.result_type(x, g))
     part = np.empty(dw.shape[1:], dw.dtype)
     blocks = _blocks(n, groups, rows * k * k * c * x.itemsize)
-    for start, stop, task, cols in _patches(x.reshape(n, h, wd, c), k, stride, blocks):
-        np.matmul(cols.T, g_rows[start * rows : stop * rows], out=part)
-        dw[task] += part
+    for start, _, segments, cols in _patches(x.reshape(n, h, wd, c), k, stride, blocks):
+        for first, last, task in segments:
+            np.matmul(cols[(first - start) * rows : (last - start) * rows].T, g_rows[first * rows : last * rows],
+                      out=part)
+            dw[task] += part
     return dw.reshape(w_shape)
 
 
