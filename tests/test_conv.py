@@ -93,3 +93,11 @@ def test_float32_stays_float32():
     x, w, b = (a.astype(np.float32) for a in problem((2, 3, 8, 8, 4), (2, 3, 3, 4, 5), seed=6))
     y = conv(x, w, b, 2)
     assert {y.dtype, conv_dx(y, w, x.shape, 2).dtype, conv_dw(x, y, w.shape, 2).dtype} == {np.dtype(np.float32)}
+
+
+def test_a_shared_filter_bank_with_a_bias_per_task(blocks):
+    # A parameter that adapts (the bias, one per task) beside one that does not (the filters).
+    x, w, _ = problem((3, 2, 8, 8, 4), (3, 3, 4, 5), seed=7)
+    b = np.random.default_rng(8).standard_normal((3, 5))
+    np.testing.assert_allclose(conv(x, w, b, 2), composed(x, w, b, 2), rtol=1e-12, atol=1e-12)
+    check_grads(lambda x, w, b: anp.sum(anp.sin(conv(x, w, b, 2))), modes=["rev"], order=2)(x, w, b)

@@ -158,46 +158,45 @@ def _layout(x_shape, w_shape, stride, b_shape=None):
 
 
 def _blocks(n, groups, image_bytes):
-    """The blocks of images, each at most BLOCK_BYTES of patches (or one image), as (start, stop,
-    segments): segments (start, stop, task) are the block's images of each task, one matrix product
-    each. A task larger than a block spans several; smaller ones share one, whole (fewer, larger
+    """The blocks of images, each at most BLOCK_BYTES of patches (or one image), as (start, stop, first,
+    last): its images, and the tasks first..last - 1 they belong to. A task larger than a block spans
+    several (first + 1 == last); smaller ones share one, whole, one product for each (fewer, larger
     copies when the layer is small and the tasks many)."""
     per_task, size = n // groups, max(1, BLOCK_BYTES // image_bytes)
     if per_task > size:
-        return [(s, min(s + size, (t + 1) * per_task), [(s, min(s + size, (t + 1) * per_task), t)])
+        return [(s, min(s + size, (t + 1) * per_task), t, t + 1)
                 for t in range(groups) for s in range(t * per_task, (t + 1) * per_task, size)]
     together = size // per_task
-    return [(t * per_task, min(t + together, groups) * per_task,
-             [(u * per_task, (u + 1) * per_task, u) for u in range(t, min(t + together, groups))])
+    return [(t * per_task, min(t + together, groups) * per_task, t, min(t + together, groups))
             for t in range(0, groups, together)]
 
 
 def _patches(x, k, stride, blocks):
-    """For each block, (start, stop, segments, cols): the block's `im2col` rows, (images * H_out * W_out,
+    """For each block, (start, stop, first, last, cols): the block's `im2col` rows, (images * H_out * W_out,
     k * k * C), in one buffer reused from block to block (use each before taking the next)."""
     n, h, w, c = x.shape
-    p, largest = k // 2, max(stop - start for start, stop, _ in blocks)
+    p, largest = k // 2, max(stop - start for start, stop, _, _ in blocks)
     h_out, w_out = conv_output_size(h, k, stride), conv_output_size(w, k, stride)
     x_pad = np.zeros((largest, h + 2 * p, w + 2 * p, c), x.dtype)          # the border stays zero
     sn, sh, sw, sc = x_pad.strides
     patches = as_strided(x_pad, (largest, h_out, w_out, k, k, c), (sn, stride * sh, stride * sw, sh, sw, sc),
                          writeable=False)
     cols = np.empty(patches.shape, x.dtype)
-    for start, stop, segments in blocks:
+    for start, stop, first, last in blocks:
         f = stop - start
         x_pad[:f, p : p + h, p : p + w] = x[start:stop]
         np.copyto(cols[:f], patches[:f])
-        yield start, stop, segments, cols[:f].reshape(-1, k * k * c)
+        yield start, stop, first, last, cols[:f].reshape(-1, k * k * c)
 
 
-def _weight(w, task):
-    """The task's (k k C, M) weight matrix from (B, k k C, M), or the shared (k k C, M) itself."""
-    return w[task] if w.ndim == 3 else w
+def _tasks(a, first, last, per_task_ndim):
+    """a[first:last], the tasks' slices of a per-task array (a.ndim == per_task_ndim), or the shared a."""
+    return a[first:last] if a.ndim == per_task_ndim else a
 
 
-def _bias(b, task):
-    """The task's bias from (B, M), or the shared (M,) itself."""
-    return b[task] if b.ndim == 2 else b
+def _by_task(rows, first, last):
+    """A block's rows (R, n) as (tasks, R / tasks, n): one matrix per task, for one stacked product."""
+    return rows.reshape(last - first, -1, rows.shape[-1])
 
 
 @primitive
@@ -209,12 +208,11 @@ def conv(x, w, b, stride):
     y = np.empty((n * h_out * w_out, m), np.result_type(x, w))
     rows = h_out * w_out
     blocks = _blocks(n, groups, rows * k * k * c * x.itemsize)
-    for start, _, segments, cols in _patches(x.reshape(n, h, wd, c), k, stride, blocks):
-        for first, last, task in segments:
-            out = y[first * rows : last * rows]
-            np.matmul(cols[(first - start) * rows : (last - start) * rows], _weight(weight, task), out=out)
-            if b is not None:
-                out += _bias(b, task)
+    for start, stop, first, last, cols in _patches(x.reshape(n, h, wd, c), k, stride, blocks):
+        out = _by_task(y[start * rows : stop * rows], first, last)
+        np.matmul(_by_task(cols, first, last), _tasks(weight, first, last, 3), out=out)
+        if b is not None:
+            out += _tasks(b, first, last, 2)[..., None, :] if b.ndim == 2 else b
     return y.reshape(x.shape[:-3] + (h_out, w_out, m))
 
 
@@ -227,12 +225,11 @@ def conv_dx(g, w, x_shape, stride):
     g_rows, rows = g.reshape(-1, m), h_out * w_out
     dx = np.empty((n, h, wd, c), np.result_type(g, w))
     blocks = _blocks(n, groups, rows * k * k * c * dx.itemsize)
-    dcols = np.empty((max(stop - start for start, stop, _ in blocks) * rows, k * k * c), dx.dtype)
-    for start, stop, segments in blocks:
-        for first, last, task in segments:
-            np.matmul(g_rows[first * rows : last * rows], _weight(weight_t, task),
-                      out=dcols[(first - start) * rows : (last - start) * rows])
+    dcols = np.empty((max(stop - start for start, stop, _, _ in blocks) * rows, k * k * c), dx.dtype)
+    for start, stop, first, last in blocks:
         d = dcols[: (stop - start) * rows]
+        np.matmul(_by_task(g_rows[start * rows : stop * rows], first, last), _tasks(weight_t, first, last, 3),
+                  out=_by_task(d, first, last))
         if (k, stride) == (3, 2) and h % 2 == 0 and wd % 2 == 0:
             _col2im_3x3_stride2(d, (stop - start, h, wd, c), out=dx[start:stop])
         else:
@@ -247,13 +244,10 @@ def conv_dw(x, g, w_shape, stride):
     n, h, wd, c, k, h_out, w_out, m, groups = _layout(x.shape, w_shape, stride)
     g_rows, rows = g.reshape(-1, m), h_out * w_out
     dw = np.zeros((groups, k * k * c, m), np.result_type(x, g))
-    part = np.empty(dw.shape[1:], dw.dtype)
     blocks = _blocks(n, groups, rows * k * k * c * x.itemsize)
-    for start, _, segments, cols in _patches(x.reshape(n, h, wd, c), k, stride, blocks):
-        for first, last, task in segments:
-            np.matmul(cols[(first - start) * rows : (last - start) * rows].T, g_rows[first * rows : last * rows],
-                      out=part)
-            dw[task] += part
+    for start, stop, first, last, cols in _patches(x.reshape(n, h, wd, c), k, stride, blocks):
+        dw[first:last] += np.matmul(np.swapaxes(_by_task(cols, first, last), -1, -2),
+                                    _by_task(g_rows[start * rows : stop * rows], first, last))
     return dw.reshape(w_shape)
 
 
