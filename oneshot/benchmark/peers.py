@@ -54,8 +54,6 @@ def _torch(net_cfg, inner):
     import torch
     import torch.nn.functional as F
 
-    torch.set_num_threads(max(1, torch.get_num_threads()))
-
     def forward(p, images, states):
         """images (T, C, H, W) (PyTorch's layout, converted once outside the timing), states (T, 6)."""
         x, i = images, 0
