@@ -148,7 +148,7 @@ BLOCK_BYTES = 1 << 20      # patches per block: about the second-level cache of 
 
 def _layout(x_shape, w_shape, stride, b_shape=None):
     """(images, H, W, C, k, H_out, W_out, M, groups): groups = B when the weight or bias is per task
-    (blocks of images then stay within one task), else 1."""
+    (a block of images then holds whole tasks, or part of one), else 1."""
     *lead, h, w, c = x_shape
     k, m = w_shape[-4], w_shape[-1]
     tasks = [s[0] for s in (w_shape, b_shape) if s is not None and len(s) in (2, 5)]
