@@ -8,6 +8,7 @@ from autograd import grad, value_and_grad
 from autograd.test_util import check_grads
 
 from helpers import make_demo, make_mlp, mlp_loss
+from oneshot.maml import batched
 from oneshot.maml.batched import value_and_grads
 
 
@@ -45,3 +46,24 @@ def test_value_and_grads_nests_to_second_order():
     for k in params:
         np.testing.assert_allclose(g1[k], g2[k], rtol=1e-10, atol=1e-12)
     check_grads(lambda w1: ours({**params, "W1": w1}), modes=["rev"], order=2)(params["W1"])
+
+
+def test_packed_reduce_equals_reducing_each_array_to_second_order():
+    # The frame shards reduce an inner gradient's arrays together, packed into one vector
+    # (`batched._reduced`); for a reduce that acts element by element that is reducing each array on
+    # its own: the same values and, through `pack`, `piece` and `embed`, the same gradients.
+    rng = np.random.default_rng(3)
+    arrays = {"a": rng.standard_normal((2, 3)), "b": rng.standard_normal(4), "c": rng.standard_normal((2, 1, 2))}
+    weights = {k: rng.standard_normal(v.shape) for k, v in arrays.items()}
+    reduce = lambda v: 3.0 * v + v * v                                       # element by element
+
+    def loss(reduce_all):
+        return lambda arrays: sum(anp.sum(anp.sin(r) * weights[k]) for k, r in reduce_all(arrays).items())
+
+    packed = loss(lambda g: batched._reduced(g, reduce))
+    each = loss(lambda g: {k: reduce(v) for k, v in g.items()})
+    assert packed(arrays) == pytest.approx(each(arrays), rel=1e-14)
+    g_packed, g_each = grad(packed)(arrays), grad(each)(arrays)
+    for k in arrays:
+        np.testing.assert_allclose(g_packed[k], g_each[k], rtol=1e-13)
+    check_grads(packed, modes=["rev"], order=2)(arrays)

@@ -1,4 +1,4 @@
-"""Tests for oneshot/layers.py: the autograd primitives the policy network is built from.
+"""Tests for oneshot/policy/layers.py (and the affine and conv modules it gathers): the autograd primitives the policy network is built from.
 
 Each test checks a property against something independent: a naive loop convolution
 (tests/helpers.py), the adjoint identity <f(x), y> == <x, f^T(y)> for every linear primitive,
@@ -11,8 +11,9 @@ import pytest
 from autograd.test_util import check_grads
 
 from helpers import naive_conv2d
-from oneshot.policy.layers import (_col2im_3x3_stride2, _col2im_any, add_bias, bias_grad, broadcast_bias, col2im,
-                            concat_last, conv2d, im2col, matmul, matmul_dw, matmul_dx, relu, spatial_soft_argmax)
+from oneshot.policy.conv import _col2im_3x3_stride2, _col2im_any
+from oneshot.policy.layers import (add_bias, bias_grad, broadcast_bias, col2im, concat_last, conv2d, im2col, matmul,
+                                   matmul_dw, matmul_dx, relu, spatial_soft_argmax)
 
 
 @pytest.mark.parametrize("stride, size", [(2, 7), (2, 8), (1, 5)])

@@ -302,7 +302,7 @@ def test_layer_norm_second_order_gradients_and_what_it_normalises():
     assert {k for k in params if k.startswith("ln")} == {"ln0_offset", "ln1_offset"}
     check_grads(squared_error(forward_reference, images, states, actions), modes=["rev"], order=2)(params)
     check_grads(squared_error(predict, images, states, actions), modes=["rev"], order=2)(params)
-    from oneshot.policy.network import layer_norm
+    from oneshot.policy.layers import layer_norm
     x = np.random.default_rng(3).normal(2.0, 5.0, (4, 3, 5, 5, 6))
     y = layer_norm(x, np.zeros(6))
     np.testing.assert_allclose(y.mean(axis=(-3, -2, -1)), 0, atol=1e-12)

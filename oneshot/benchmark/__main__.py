@@ -1,14 +1,15 @@
-"""Speed and quality benchmarks: `python -m oneshot.benchmark {expert,collect,maml} --help`.
+"""Speed and quality benchmarks: `python -m oneshot.benchmark {expert,collect,maml,privileged} --help`.
 
 These measure what tests should not time: medians of repeated runs on this machine.
-    expert   iLQG solve time (median over scenes) and the expert's success rate over many scenes
-    collect  wall time to collect a dataset of demonstrations with all cores
-    maml     seconds per second-order meta-iteration, GFLOP/s and peak memory; with --breakdown, where
-             the time of one process's part of it goes (its block of every demo's frames)
+    maml        seconds per meta-iteration, GFLOP/s against the machine's matrix-product ceiling measured
+                in the same run, memory; the same work in PyTorch or JAX (--peer); where the time goes
+                (--breakdown)
+    expert      iLQG solve time (median over scenes) and the expert's success rate over many scenes
+    collect     wall time to collect a dataset of demonstrations with all cores
     privileged  ceilings for the policy network: plain behavioural cloning on all meta-training
-             demos when the policy is GIVEN what one-shot imitation must infer (the target's position,
-             or its colour), scored on held-out colours. If these are high, what remains hard is the
-             one-shot identification of the colour, i.e. meta-learning itself.
+                demos when the policy is GIVEN what one-shot imitation must infer (the target's position,
+                or its colour), scored on held-out colours. If these are high, what remains hard is the
+                one-shot identification of the colour, i.e. meta-learning itself.
 """
 import argparse
 import json
@@ -25,8 +26,10 @@ from oneshot.training.config import PROFILES
 from oneshot.world.reach import WorldConfig
 
 
+from oneshot.benchmark import peers
 from oneshot.benchmark.expert import bench_collect, bench_expert
-from oneshot.benchmark.maml import bench_breakdown, bench_meta_iteration
+from oneshot.benchmark.breakdown import bench_breakdown
+from oneshot.benchmark.maml import bench_meta_iteration
 from oneshot.benchmark.privileged import bench_privileged
 
 
@@ -52,9 +55,16 @@ def main(argv=None):
     m.add_argument("--meta-batch", type=cli.positive_int, default=None, help="override the profile's meta-batch")
     m.add_argument("--shards", type=cli.positive_int, default=None,
                    help="override the profile's shards (processes sharing each meta-gradient; 1 = one process)")
+    m.add_argument("--blas-threads", type=cli.positive_int, default=None,
+                   help="BLAS threads of the training process (default: one per core with --shards 1, else 1; "
+                        "Figure 2's runs: --shards 1 --blas-threads 1)")
+    m.add_argument("--peer", choices=sorted(peers.PEERS), default=None,
+                   help="time the same second-order meta-gradient in PyTorch or JAX instead of ours, on all the "
+                        "cores (pip install -e .[peers]); run it and ours alternately to compare")
     m.add_argument("--breakdown", action="store_true",
-                   help="instead: where the time of the training process's part goes (matrix products, "
-                        "im2col/col2im, other layer primitives, autograd's Python)")
+                   help="instead: where the time of one process goes (the convolutions' matrix products and "
+                        "their transposes, im2col/col2im, other layer primitives, autograd's Python, the "
+                        "exchanges between processes, the evaluation rollouts)")
     v = sub.add_parser("privileged", help="ceiling: behavioural cloning given the target's position or colour")
     v.add_argument("--given", choices=("position", "colour"), default="colour")
     v.add_argument("--steps", type=cli.positive_int, default=3000)
@@ -88,8 +98,17 @@ def main(argv=None):
                                        ("inner_params", args.inner_params), ("meta_batch", args.meta_batch),
                                        ("shards", args.shards), ("method", args.method),
                                        ("lstm_units", args.lstm_units)) if v is not None}
-        bench = bench_breakdown if args.breakdown else bench_meta_iteration
-        result = bench(args.iterations, args.profile, **overrides)
+        if args.breakdown:
+            if args.peer:
+                m.error("--peer times whole meta-iterations; drop --breakdown")
+            result = bench_breakdown(args.iterations, args.profile, **overrides)
+        else:
+            try:
+                peers.require(args.peer) if args.peer else None
+            except ValueError as error:
+                m.error(f"argument --peer: {error}")
+            result = bench_meta_iteration(args.iterations, args.profile, blas_threads=args.blas_threads,
+                                          peer=args.peer, **overrides)
     main_mb, worker_mb = host.peak_memory_mb()
     result["peak_memory_mb"] = round(main_mb, 1)
     result["peak_worker_memory_mb"] = round(worker_mb, 1)

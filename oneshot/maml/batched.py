@@ -8,7 +8,9 @@ take a cheaper route than autograd's boxed dict (`value_and_grads`). Both give t
 per-task path, which the tests prove (docs/results.md, "Speed", has what each buys).
 """
 import autograd.numpy as np
-from autograd.core import VJPNode, add_outgrads, vspace
+import numpy as onp
+from autograd.core import SparseObject, VJPNode, add_outgrads, vspace
+from autograd.extend import defvjp, defvjp_argnum, primitive
 from autograd.tracer import isbox, new_box, trace_stack
 from autograd.util import toposort
 
@@ -57,18 +59,71 @@ def adapt_batch(params, adapt, loss_tasks, inner, reduce=None):
     loss_tasks(params_b, demos) -> scalar: the SUM over tasks of eq. (2), where an array of params_b
         may have a leading task axis of size B.
     inner: `inner.InnerLoop`, every option of eq. (1); parameters that do not adapt stay shared.
-    reduce: as in `inner_update` (`oneshot.maml.shards`).
+    reduce: as in `inner_update` (`oneshot.maml.shards`), a function that acts element by element (the
+        arrays of each inner gradient go through it together, packed into one vector: `_reduced`).
     Returns the adapted parameters: a dict like params, each adapted array with a task axis (B, ...).
     """
     B = _batch_size(adapt)
     copies = {k: np.ones((B,) + (1,) * np.ndim(params[k]), dtype=params[k].dtype) * params[k]
               for k in adapted_keys(params, inner.only, inner.frozen)}
-    return inner_update({**params, **copies}, adapt, loss_tasks, **inner.options(), gradient=_gradient,
-                        reduce=reduce)
+    gradient = _gradient if reduce is None else lambda f, theta: _reduced(_gradient(f, theta), reduce)
+    return inner_update({**params, **copies}, adapt, loss_tasks, **inner.options(), gradient=gradient)
 
 
 def _gradient(f, theta):
     return value_and_grads(lambda th: f(th), theta)[1]
+
+
+# ----------------------------------------------------------------------------------------------------
+# One reduce for all the arrays of an inner gradient
+# ----------------------------------------------------------------------------------------------------
+# `reduce` (the sum over processes, `oneshot.maml.shards`) acts element by element, so the arrays of an
+# inner gradient can go through it together, packed into one vector: one exchange between the processes
+# per inner gradient (and one for its VJP) instead of one per parameter array, the same numbers. What
+# this buys: docs/results.md, "Speed". `pack` and `piece` are each other's VJP, as `concat_last` and
+# `slice_last`; a piece's cotangent is added into the packed vector's in place (`embed`, a sparse
+# object, as autograd's own indexing does), not as a vector of zeros per piece.
+
+
+def _reduced(grads, reduce):
+    """{k: reduce(g_k)} with one call of reduce on every array packed into one vector."""
+    total, start, out = reduce(pack(*grads.values())), 0, {}
+    for k, g in grads.items():
+        out[k] = piece(total, start, np.shape(g))
+        start += np.size(g)
+    return out
+
+
+@primitive
+def pack(*arrays):
+    """Every array raveled, one after the other: one vector."""
+    return onp.concatenate([onp.ravel(a) for a in arrays])
+
+
+@primitive
+def piece(flat, start, shape):
+    """flat[start : start + size] as an array of `shape` (a view)."""
+    return flat[start : start + int(onp.prod(shape, dtype=int))].reshape(shape)
+
+
+@primitive
+def embed(x, start, flat_vspace):
+    """The VJP of `piece`: x in [start, start + size) of a vector of `flat_vspace`, zero elsewhere,
+    as a sparse object that autograd adds into the vector's gradient in place."""
+    def add_into(flat):
+        flat[start : start + x.size] += onp.ravel(x)
+        return flat
+    return SparseObject(flat_vspace, add_into)
+
+
+def _pack_vjp(argnum, ans, args, kwargs):
+    start = sum(onp.size(a) for a in args[:argnum])
+    return lambda g: piece(g, start, onp.shape(args[argnum]))
+
+
+defvjp_argnum(pack, _pack_vjp)
+defvjp(piece, lambda ans, flat, start, shape: lambda g: embed(g, start, vspace(flat)))
+defvjp(embed, lambda ans, x, start, flat_vspace: lambda g: piece(g, start, onp.shape(x)))
 
 
 def meta_objective_batched(params, adapt, evaluate, loss_tasks, inner, reduce=None):

@@ -193,7 +193,7 @@ class Pool:
         jobs = [[*params.values(), *a, *e] for a, e in blocks[:-1]]         # each worker's arrays
         layout = (tuple(params), len(adapt), [[(x.shape, x.dtype.str) for x in job] for job in jobs])
         if layout != self.layout or self.exchange.broken:
-            self._start(layout, max(x.nbytes for x in params.values()) * len(adapt[0]),
+            self._start(layout, sum(x.nbytes for x in params.values()) * len(adapt[0]),
                         sum(x.nbytes for x in params.values()))
         for mailbox, job in zip(self.mailboxes, jobs):    # parameters and frames into shared memory
             for view, x in zip(mailbox, job):
@@ -233,8 +233,9 @@ class Pool:
             memory, offsets = mmap.mmap(-1, max(1, sum(sizes))), np.cumsum([0] + sizes)
             self.mailboxes.append([np.frombuffer(memory, dtype, int(np.prod(shape)), int(o)).reshape(shape)
                                    for (shape, dtype), o in zip(job, offsets)])
-        # slots for the largest exchange: an inner gradient (every task's copy of a parameter) or the
-        # final meta-gradient of every parameter and the loss
+        # slots for the largest exchange: an inner gradient (every task's copy of every adapted
+        # parameter, packed into one vector: `batched._reduced`) or the final meta-gradient of every
+        # parameter and the loss
         self.exchange = Exchange(self.shards, max(inner_bytes, param_bytes + 8))
         blas_threads(1)
         context = multiprocessing.get_context("fork")

@@ -23,10 +23,10 @@ import autograd.numpy as anp
 import numpy as np
 
 from oneshot.policy import inputs
-from oneshot.policy.layers import add_bias, concat_last, conv2d, conv_output_size, matmul, per_frame, relu, spatial_soft_argmax
+from oneshot.policy.layers import (LN_EPSILON, add_bias, concat_last, conv2d, conv_output_size, layer_norm, matmul,
+                                   per_frame, relu, spatial_soft_argmax)
 
 STRIDE = 2   # every convolution halves the image side (MIL: stride 2)
-LN_EPSILON = 1e-6   # layer norm's variance floor (float32: an all-equal map is not divided by zero)
 
 
 @dataclass(frozen=True)
@@ -225,19 +225,6 @@ def trunk(params, images):
     if "fp_temperature" in params:  # feature points: (T, 2 * 40) expected (x, y) of each channel
         return spatial_soft_argmax(x, params["fp_temperature"])
     return anp.reshape(x, (*x.shape[:-3], -1))  # (T, H/8 * W/8 * 40) image features
-
-
-def layer_norm(x, offset):
-    """Layer normalisation of each frame's feature map, offset only (MIL's released code: `norm='layer_norm'`,
-    center=True, scale=False, between each convolution and its ReLU): x (..., H, W, C) -> the same shape,
-    (x - mean) / sqrt(var + LN_EPSILON) + offset, mean and var over the frame's H, W and C."""
-    n = x.shape[-3] * x.shape[-2] * x.shape[-1]                 # sums over n, not anp.mean: mean's VJP
-    mean = anp.sum(x, axis=(-3, -2, -1), keepdims=True) / n     # divides by a float64 count (float32 stays)
-    centred = x - mean
-    var = anp.sum(centred * centred, axis=(-3, -2, -1), keepdims=True) / n
-    if anp.ndim(offset) > 1:                                   # per task (B, C) against (B, T, H, W, C)
-        offset = anp.reshape(offset, (anp.shape(offset)[0], 1, 1, 1, anp.shape(offset)[-1]))
-    return centred / anp.sqrt(var + LN_EPSILON) + offset
 
 
 def head(params, h):

@@ -1,0 +1,32 @@
+"""`python -m oneshot.benchmark maml`: what its figures are made of (the timings themselves are for the
+benchmark, not the tests). Each runs the benchmark in its own process: it sets BLAS's threads."""
+import json
+import subprocess
+import sys
+
+import pytest
+
+
+def benchmark(*argv):
+    out = subprocess.run([sys.executable, "-m", "oneshot.benchmark", "maml", *argv], capture_output=True, text=True,
+                         check=True)
+    return json.loads(out.stdout)
+
+
+def test_maml_breakdown_finds_every_part_of_a_meta_gradient():
+    """`--breakdown` times the network's functions by name under cProfile: if one were renamed or moved,
+    its group would silently read 0 ms. The groups and autograd's Python add up to the part's time."""
+    result = benchmark("--breakdown", "--profile", "smoke", "--iterations", "1", "--inner-steps", "1")
+    assert (result["profile"], result["tasks"], result["frames"], result["inner_steps"]) == ("smoke", 2, 20, 1)
+    parts = ["conv_products_ms", "transposed_products_ms", "im2col_col2im_ms", "other_layer_primitives_ms"]
+    assert all(result[k] > 0 for k in parts + ["part_ms", "rollout_step_ms", "adapt_one_demo_ms"])
+    assert sum(result[k] for k in parts) + result["autograd_python_ms"] == pytest.approx(result["part_ms"], abs=0.5)
+    assert "exchange_ms" not in result                     # one process: nothing is exchanged
+
+
+def test_maml_reads_its_rate_against_the_ceiling_measured_in_the_same_run():
+    result = benchmark("--profile", "smoke", "--iterations", "1", "--blas-threads", "1")
+    assert (result["shards"], result["blas_threads"], result["ceiling_cores"]) == (1, 1, 1)
+    rate = result["gflop_per_iteration"] / result["seconds_per_iteration"]
+    assert result["gflop_per_second"] == pytest.approx(rate, rel=0.02)
+    assert result["percent_of_ceiling"] == pytest.approx(100 * rate / result["ceiling_gflop_per_second"], rel=0.02)
