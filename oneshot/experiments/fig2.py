@@ -1,8 +1,9 @@
 """The paper's experiments (Section IV): `python -m oneshot.experiments fig2 --profile quick|paper`.
 
-Figure 2 of the paper: one-shot success on held-out colours versus the size of the meta-training
+Figure 2 of the paper: one-shot success on new colours versus the size of the meta-training
 dataset, one line per method. A *run* is one method trained on one dataset size (colours x demos per
-colour) with one seed, then scored on the same held-out trials:
+colour) with one seed, then scored on the same trials of the profile's scored split (the test colours
+for the figure; the validation colours for the search and the ablation, which choose):
 
     python -m oneshot.experiments fig2 --profile quick                    # 2 runs at a time, this machine
     python -m oneshot.experiments fig2 --profile paper --workers 4
@@ -11,7 +12,8 @@ colour) with one seed, then scored on the same held-out trials:
     python -m oneshot.experiments fig2 --profile paper --scheduler tcp://host:8786
 
 It writes `results/fig2_<profile>/` where it runs (or `--out`): runs.csv (one row per finished run), summary.json (per method
-and size: the mean over seeds, a 95% Wilson interval on the pooled trials, the range over seeds) and
+and size: the mean over seeds, a 95% interval over seeds and colours, the range over seeds; paired
+differences between lines; `oneshot.experiments.stats`) and
 fig2.png (pip install ".[plots]"), only once every run of the profile has finished; `--seeds 0` does
 the runs of seed 0 alone and writes summary_seeds0.json and fig2_seeds0.png. Each run works in `runs/fig2/<run id>/` (profiles share the folder:
 the run id names everything a run depends on, so a run two profiles share is done once). Run the same
