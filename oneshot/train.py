@@ -4,7 +4,7 @@
     python -m oneshot.train --run runs/default --resume                # continue a stopped run exactly
 
 A run folder holds checkpoint.npz (parameters, Adam state, iteration, random state, config) and log.jsonl
-(the meta-loss and held-out checks as they come). `--resume` continues the run with the config its
+(the meta-loss and validation checks as they come). `--resume` continues the run with the config its
 checkpoint records (only how long, how often and the step size may change), exactly as if it had not
 stopped. Ctrl-C or a plain kill saves a checkpoint of the last finished iteration first (exit 130).
 Missing datasets are collected first with the profile's settings. The command around

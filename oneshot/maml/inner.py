@@ -218,7 +218,7 @@ def meta_objective(params, tasks, loss_fn, *args, **options):
 
     params: dict of arrays, not modified.
     tasks: sequence of (adapt_demo, eval_demo) pairs, one per task in the meta-batch.
-    loss_fn, args, options (alpha, steps, first_order, only): as in `inner_update`.
+    loss_fn, args, options (alpha, steps, first_order, only, frozen, clip, loss_scale): as in `inner_update`.
     Returns a scalar of the parameters' dtype.
     """
     if len(tasks) == 0:

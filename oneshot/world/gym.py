@@ -123,8 +123,8 @@ def vector_env(num_envs=1, max_episode_steps=None, **kwargs):
 class ReachEnv(gymnasium.Env):
     """Reach the disc of one colour among distractors with a planar 2-link arm (paper Section IV).
 
-    split: which colours scenes are drawn from, "train" or "validation"; palette_mode: "hues" (48
-    colours) or "grid" (648; `oneshot.world.palette`); image_size: H = W in pixels; horizon: T, steps per
+    split: which colours scenes are drawn from, "train", "validation" or "test"; palette_mode: "hues"
+    (72 colours) or "grid" (696; `oneshot.world.palette`); image_size: H = W in pixels; horizon: T, steps per
     episode (through `gymnasium.make`, pass max_episode_steps=T too: make does not tell the env its
     TimeLimit); target_colour: a palette index of the split that every episode uses, or None for a
     random colour per episode; render_mode: None or "rgb_array".

@@ -35,7 +35,7 @@ class WorldConfig:
     horizon and success radius (Section IV). Lengths in metres, angles in radians."""
     arm: ArmConfig = field(default_factory=ArmConfig)          # the arm's physics (oneshot.world.arm)
     palette: PaletteConfig = field(default_factory=PaletteConfig)   # colours, so tasks (oneshot.world.palette)
-    split: str = "train"              # which colours scenes are drawn from: "train" or "validation"
+    split: str = "train"              # which colours scenes are drawn from: "train", "validation" or "test"
     horizon: int = 20                 # T, control steps per episode
     image_size: int = 32              # 32 by default; 64 also works
     n_objects: int = 3                # one target and two distractors
