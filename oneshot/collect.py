@@ -24,7 +24,7 @@ def main(argv=None):
     p.add_argument("--out", required=True, type=cli.writable_file,
                    help="output .npz path (written atomically; checked before collecting)")
     p.add_argument("--split", choices=palette.SPLITS, default="train",
-                   help="colours to draw tasks from: meta-training or held-out (default: train)")
+                   help="colours to draw tasks from: meta-training, validation or test (default: train)")
     p.add_argument("--tasks", type=cli.positive_int, default=36, help="number of tasks (distinct target colours)")
     p.add_argument("--demos", type=cli.at_least(2, " (MAML adapts on one demo and scores another)"), default=8,
                    help="demonstrations per task (at least 2)")
@@ -34,7 +34,7 @@ def main(argv=None):
                    help="processes (default and at most: the cores, and the demos)")
     p.add_argument("--image-size", type=cli.at_least(8), default=32, help="image side in pixels (32 or 64)")
     p.add_argument("--palette", choices=palette.MODES, default="hues",
-                   help="the colours: 'hues' (default: 36 meta-training, 12 held out) or 'grid' (324 and 108; "
+                   help="the colours: 'hues' (default: 36 meta-training, 12 validation, 24 test) or 'grid' (324, 108, 48; "
                         "oneshot.world.palette)")
     p.add_argument("--horizon", type=cli.at_least(5, " (success is judged on the final fifth)"), default=20,
                    help="time steps per demonstration")

@@ -30,3 +30,19 @@ def test_maml_reads_its_rate_against_the_ceiling_measured_in_the_same_run():
     rate = result["gflop_per_iteration"] / result["seconds_per_iteration"]
     assert result["gflop_per_second"] == pytest.approx(rate, rel=0.02)
     assert result["percent_of_ceiling"] == pytest.approx(100 * rate / result["ceiling_gflop_per_second"], rel=0.02)
+
+
+@pytest.mark.parametrize("command", ["expert", "collect", "maml", "privileged"])
+def test_every_benchmark_option_says_what_it_does(capsys, command):
+    from oneshot.benchmark import __main__ as benchmark
+    with pytest.raises(SystemExit):
+        benchmark.main([command, "--help"])
+    lines = capsys.readouterr().out.split("options:")[1].splitlines()
+    bare = []
+    for i, line in enumerate(lines):
+        if line.startswith("  -"):
+            inline = [part for part in line.strip().split("  ") if part.strip()]
+            below = i + 1 < len(lines) and lines[i + 1].startswith(" " * 10) and not lines[i + 1].lstrip().startswith("-")
+            if len(inline) < 2 and not below:
+                bare.append(inline[0])
+    assert not bare, f"options of `benchmark {command}` without help: {bare}"

@@ -235,7 +235,8 @@ def test_experiments(fig2_results, tmp_path):
     # of held-out colours of the grid palette.
     recorded = {r["method"] for r in rows if "per_colour" in json.loads(r["notes"])}
     assert set(v["per_colour"]) == recorded
-    heldout = set(palette.split_colours("validation", palette.PaletteConfig(mode="grid")).tolist())
+    scored = summary.get("config", {}).get("score", "validation")      # the split the sweep scored
+    heldout = set(palette.split_colours(scored, palette.PaletteConfig(mode="grid")).tolist())
     for method, counts in v["per_colour"].items():
         largest = max((p for p in summary["methods"][method]), key=lambda p: p["size"])
         assert [sum(c[0] for c in counts.values()), sum(c[1] for c in counts.values())] == \

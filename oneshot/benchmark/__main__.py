@@ -8,7 +8,7 @@ These measure what tests should not time: medians of repeated runs on this machi
     collect     wall time to collect a dataset of demonstrations with all cores
     privileged  ceilings for the policy network: plain behavioural cloning on all meta-training
                 demos when the policy is GIVEN what one-shot imitation must infer (the target's position,
-                or its colour), scored on held-out colours. If these are high, what remains hard is the
+                or its colour), scored on validation colours. If these are high, what remains hard is the
                 one-shot identification of the colour, i.e. meta-learning itself.
 """
 import argparse
@@ -38,13 +38,16 @@ def main(argv=None):
                    formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="what", required=True)
     e = sub.add_parser("expert", help="iLQG solve time and expert success rate")
-    e.add_argument("--scenes", type=cli.positive_int, default=500)
+    e.add_argument("--scenes", type=cli.positive_int, default=500,
+                   help="random scenes to plan and run the expert in (default 500)")
     c = sub.add_parser("collect", help="time to collect demonstrations")
-    c.add_argument("--demos", type=cli.positive_int, default=1000)
+    c.add_argument("--demos", type=cli.positive_int, default=1000, help="demonstrations to collect (default 1000)")
     c.add_argument("--workers", type=cli.positive_int, default=None, help="processes (default and at most: the cores)")
     m = sub.add_parser("maml", help="seconds per second-order meta-iteration")
-    m.add_argument("--iterations", type=cli.positive_int, default=20)
-    m.add_argument("--profile", choices=sorted(PROFILES), default="default")
+    m.add_argument("--iterations", type=cli.positive_int, default=20,
+                   help="meta-iterations timed; the median is reported (default 20)")
+    m.add_argument("--profile", choices=sorted(PROFILES), default="default",
+                   help="the training profile whose meta-iteration is timed (default: default)")
     m.add_argument("--method", choices=[n for n in methods.NAMES if methods.REGISTRY[n].learns], default=None,
                    help="time a baseline's iteration (same meta-batch, trunk and widths) instead of MIL's")
     m.add_argument("--lstm-units", type=cli.positive_int, default=None, help="override the LSTM baseline's width")
@@ -66,12 +69,13 @@ def main(argv=None):
                         "their transposes, im2col/col2im, other layer primitives, autograd's Python, the "
                         "exchanges between processes, the evaluation rollouts)")
     v = sub.add_parser("privileged", help="ceiling: behavioural cloning given the target's position or colour")
-    v.add_argument("--given", choices=("position", "colour"), default="colour")
-    v.add_argument("--steps", type=cli.positive_int, default=3000)
-    v.add_argument("--trials", type=cli.positive_int, default=60)
-    v.add_argument("--feature-points", action="store_true")
-    v.add_argument("--train-data", default="data/train.npz")
-    v.add_argument("--seed", type=cli.non_negative_int, default=0)
+    v.add_argument("--given", choices=("position", "colour"), default="colour",
+                   help="what the policy is given that one-shot imitation must infer (default: colour)")
+    v.add_argument("--steps", type=cli.positive_int, default=3000, help="behavioural-cloning steps (default 3000)")
+    v.add_argument("--trials", type=cli.positive_int, default=60, help="trials on validation colours (default 60)")
+    v.add_argument("--feature-points", action="store_true", help="feature points instead of a flattened trunk")
+    v.add_argument("--train-data", default="data/train.npz", help="meta-training demonstrations (default data/train.npz)")
+    v.add_argument("--seed", type=cli.non_negative_int, default=0, help="parameters, batches and scenes (default 0)")
     args = p.parse_args(argv)
     world = WorldConfig()                    # the frames and images the benchmarks time
     try:                                     # what must fit in memory, before the work

@@ -1,6 +1,6 @@
 """Ceilings for the policy network (`python -m oneshot.benchmark privileged`): plain behavioural cloning
 on all meta-training demos when the policy is GIVEN what one-shot imitation must infer (the target's
-position, or its colour), scored on held-out colours. If these are high, what remains hard is the
+position, or its colour), scored on validation colours. If these are high, what remains hard is the
 one-shot identification of the colour, i.e. meta-learning itself."""
 import dataclasses
 
@@ -25,7 +25,7 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
     given="colour":   the target colour's RGB in [0, 1] is appended to every pixel (3 more input
                       channels to the first convolution; MIL's contextual policy gets a demo image there).
     Trains the policy network (`oneshot.policy.network`) on all demos of `train_data` with Adam, `batch`
-    demos per step, then runs it in `trials` new scenes of held-out colours.
+    demos per step, then runs it in `trials` new scenes of validation colours.
     """
     if given not in ("position", "colour"):
         raise ValueError(f"given must be 'position' or 'colour'; got {given!r}")
@@ -68,7 +68,7 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
         params, adam = optim.adam_step(params, g(params, im, st, actions[ti, ki].reshape(-1, 2)), adam, lr)
     world = ReachWorld(dataclasses.replace(world_cfg, split="validation"))
     wins = sum(imitation.rollout(policy, world, imitation.trial_seed(0, 0, j))["success"]
-               for j in tqdm(range(trials), desc="held-out trials"))
+               for j in tqdm(range(trials), desc="validation trials"))
     return {"given": given, "feature_points": feature_points, "steps": steps, "batch_demos": batch,
             "seed": seed, "validation_trials": trials, "validation_success": wins / trials,
             "ci95": wilson_interval(wins, trials)}

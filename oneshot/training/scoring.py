@@ -1,6 +1,6 @@
 """One-shot success rate of a meta-trained policy: `python -m oneshot.evaluate CHECKPOINT --help`.
 
-Paper Section IV's protocol: for each held-out colour, take ONE demonstration of it, adapt (eq. 1),
+Paper Section IV's protocol: for each colour of a held-out split (validation or test), take ONE demonstration of it, adapt (eq. 1),
 and run the adapted policy in new scenes of that colour (new positions, new distractors); success is
 the end effector within 0.05 m of the target over the final fifth of the episode. Reported with a
 95% Wilson score interval, and on meta-training colours for contrast.

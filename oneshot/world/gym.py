@@ -36,7 +36,7 @@ import functools
 
 import numpy as np
 
-from oneshot import GYM_ENV_ID as ENV_ID
+from oneshot import GYM_ENV_ID as ENV_ID  # noqa: F401 (re-exported: the id, here too)
 from oneshot.tools import viz
 from oneshot.world import palette, render
 from oneshot.world.palette import PaletteConfig
