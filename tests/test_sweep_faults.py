@@ -40,6 +40,14 @@ def test_rows_the_work_folder_did_not_produce_are_run_again_and_replaced(tmp_pat
     assert again == mine and all(calls(tmp_path / "my_work" / r.run_id) == 1 for r in RUNS)   # now done
 
 
+def test_keep_rows_continues_ones_own_sweep_whose_work_folder_is_gone(tmp_path):
+    done = [r for r in RUNS if r.seed == 0]
+    sweep(done, tmp_path / "results", tmp_path / "lost_work", CONTEXT, fake_run, progress=False)
+    rows = sweep(RUNS, tmp_path / "results", tmp_path / "new_work", CONTEXT, fake_run, progress=False, keep_rows=True)
+    assert len(rows) == len(RUNS)
+    assert [r.run_id for r in RUNS if calls(tmp_path / "new_work" / r.run_id)] == [r.run_id for r in RUNS if r.seed == 1]
+
+
 def test_a_row_changed_by_hand_is_not_done(tmp_path):
     sweep(RUNS, tmp_path / "results", tmp_path / "work", CONTEXT, fake_run, progress=False)
     csv = tmp_path / "results" / "runs.csv"

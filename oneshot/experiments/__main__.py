@@ -89,6 +89,9 @@ def main(argv=None):
                    help="only these of the profile's seeds (default: all of them); their summary and figure "
                         "are summary_seeds<S>.json and fig2_seeds<S>.png, beside the whole profile's")
     f.add_argument("--no-progress", action="store_true", help="no progress bar")
+    f.add_argument("--keep-rows", action="store_true",
+                   help="count the rows already in the results folder as done, though this work folder did not "
+                        "produce them: to continue your own sweep after its work folder is gone (never to reproduce)")
     f.add_argument("--compare", default=None, metavar="RESULTS",
                    help="after the sweep, compare its results point by point with another results folder (e.g. "
                         "the committed results/fig2_<profile> of a clone): does each point agree within its interval?")
@@ -137,7 +140,7 @@ def main(argv=None):
             ensure_data(cfg, args.data, progress=not args.no_progress)
             try:
                 rows = sweep(runs, out, args.work, run_context(cfg, args.data), run_one, executor=executor,
-                             progress=not args.no_progress, workers=workers)
+                             progress=not args.no_progress, workers=workers, keep_rows=args.keep_rows)
             except SweepLocked as e:
                 sys.exit(f"error: {e}")
     except KeyboardInterrupt:

@@ -109,7 +109,8 @@ def _lock(folder, name, stack):
         raise SweepLocked(f"another sweep is running with {folder} (it holds {lock.name})") from None
 
 
-def sweep(runs, results_dir, work_dir, context, run_fn, executor=None, progress=True, workers=2, stop_after=30.0):
+def sweep(runs, results_dir, work_dir, context, run_fn, executor=None, progress=True, workers=2, stop_after=30.0,
+          keep_rows=False):
     """Perform every run of `runs` (RunSpecs) not yet done; return the rows of the done ones (dicts over
     COLUMNS, in runs.csv's order). A run is done when results_dir/runs.csv holds the row that its own
     folder work_dir/<run id> produced (`produced`).
@@ -123,13 +124,15 @@ def sweep(runs, results_dir, work_dir, context, run_fn, executor=None, progress=
     (a second one is refused: SweepLocked); one whose runs are all done only reads runs.csv, so it may
     summarise while another sweep runs. Ctrl-C (KeyboardInterrupt) stops the pool's workers with SIGTERM
     (each run saves a checkpoint), kills what is left after `stop_after` seconds, and raises again.
+    keep_rows: count every row of runs.csv as done, produced here or not: to continue one's own sweep
+    whose work folder is gone (another machine, a later sitting), never to reproduce one.
     """
     context = {} if context is None else context
     ids = [r.run_id for r in runs]
     if len(set(ids)) != len(ids):
         raise ValueError(f"runs lists {sorted({i for i in ids if ids.count(i) > 1})} more than once")
     csv_path = os.path.join(results_dir, "runs.csv")
-    mine = lambda rows: {row_id(row): row for row in rows if produced(row, work_dir)}
+    mine = lambda rows: {row_id(row): row for row in rows if keep_rows or produced(row, work_dir)}
     done = mine(read_rows(csv_path))                  # runs.csv is replaced whole: safe to read
     if all(i in done for i in ids):            # nothing to run: no lock (another sweep may be running)
         return _finished(done, ids)
