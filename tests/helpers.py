@@ -5,6 +5,7 @@
     naive_conv2d                                'same' convolution as explicit loops over output pixels
     squared_error                               the summed squared error of a network's actions
     assert_batched_equals_loop                  oneshot.maml.batched == oneshot.maml.inner's per-task loop
+    RIGHT_1, RIGHT_9                            students' right answers to exercises 1 and 9, as source text
 """
 import autograd.numpy as anp
 import numpy as np
@@ -94,3 +95,23 @@ def assert_batched_equals_loop(params, adapt, evaluate, loss, alpha, steps, **kw
     for k in params:
         np.testing.assert_allclose(g_batched[k], g_loop[k], rtol=1e-8, atol=1e-12, err_msg=k)
     return (v_loop, g_loop), (v_batched, g_batched)
+
+
+# ----- students' right answers to exercises 1 (is_success) and 9 (wilson_interval), as source text -----
+
+RIGHT_1 = """
+import numpy as np
+def is_success(end_effector, target, success_radius=0.05):
+    e = np.asarray(end_effector)
+    return bool(np.linalg.norm(e[-max(1, len(e) // 5):] - target, axis=-1).min() <= success_radius)
+"""
+RIGHT_9 = """
+import math
+def wilson_interval(successes, trials, z=1.96):
+    if trials == 0:
+        return 0.0, 1.0
+    p, n = successes / trials, trials
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+"""

@@ -11,6 +11,7 @@ import autograd.numpy as anp
 import numpy as np
 import pytest
 from autograd import grad
+from helpers import RIGHT_1, RIGHT_9
 
 from oneshot.expert import ilqg
 from oneshot.exercises import EXERCISES, check, reference
@@ -235,23 +236,7 @@ def test_the_step_is_checked_against_ilqg_backward_pass_on_one_step():
 
 # ----- the command line -----
 
-RIGHT_1 = """
-import numpy as np
-def is_success(end_effector, target, success_radius=0.05):
-    e = np.asarray(end_effector)
-    return bool(np.linalg.norm(e[-max(1, len(e) // 5):] - target, axis=-1).min() <= success_radius)
-"""
 WRONG_1 = RIGHT_1.replace("e[-max(1, len(e) // 5):]", "e")
-RIGHT_9 = """
-import math
-def wilson_interval(successes, trials, z=1.96):
-    if trials == 0:
-        return 0.0, 1.0
-    p, n = successes / trials, trials
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return max(0.0, centre - half), min(1.0, centre + half)
-"""
 
 
 def test_cli_check_exit_statuses(tmp_path, capsys):

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import RIGHT_1, RIGHT_9
 
 import oneshot
 from oneshot.exercises import __main__ as cli_main
@@ -33,22 +34,6 @@ def _landlock_abi():
 needs_landlock = pytest.mark.skipif(_landlock_abi() < 6, reason="no Landlock ABI >= 6 on this kernel: "
                                     "files, network and signals are not confined (the grader warns)")
 
-RIGHT_1 = """
-import numpy as np
-def is_success(end_effector, target, success_radius=0.05):
-    e = np.asarray(end_effector)
-    return bool(np.linalg.norm(e[-max(1, len(e) // 5):] - target, axis=-1).min() <= success_radius)
-"""
-RIGHT_9 = """
-import math
-def wilson_interval(successes, trials, z=1.96):
-    if trials == 0:
-        return 0.0, 1.0
-    p, n = successes / trials, trials
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return max(0.0, centre - half), min(1.0, centre + half)
-"""
 FAKE = """
 import json, os, sys
 for n in range(1, 11):       # the old protocol's lines, and JSON verdicts, everywhere a grader might read
