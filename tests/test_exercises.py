@@ -11,8 +11,8 @@ import autograd.numpy as anp
 import numpy as np
 import pytest
 from autograd import grad
-from helpers import RIGHT_1, RIGHT_9
 
+from helpers import RIGHT_1, RIGHT_9
 from oneshot.expert import ilqg
 from oneshot.exercises import EXERCISES, check, reference
 from oneshot.exercises.__main__ import main

@@ -16,9 +16,9 @@ import time
 from pathlib import Path
 
 import pytest
-from helpers import RIGHT_1, RIGHT_9
 
 import oneshot
+from helpers import RIGHT_1, RIGHT_9
 from oneshot.exercises import __main__ as cli_main
 
 ROOT = str(Path(oneshot.__file__).resolve().parent.parent)
