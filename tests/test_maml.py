@@ -267,6 +267,9 @@ def test_bad_settings_raise_actionable_errors():
         inner_update(params, demo, mlp_loss, alpha=-0.1)
     with pytest.raises(ValueError, match="steps"):
         inner_update(params, demo, mlp_loss, steps=1.5)
+    for option, bad in [("clip", -1.0), ("loss_scale", 0.0), ("first_order", 1), ("only", "W1")]:  # the InnerLoop checks
+        with pytest.raises(ValueError, match=option):
+            inner_update(params, demo, mlp_loss, **{option: bad})
     with pytest.raises(ValueError, match="at least one"):
         meta_objective(params, [], mlp_loss, 0.01, 1)
     with pytest.raises(ValueError, match="pair"):

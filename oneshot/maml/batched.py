@@ -71,7 +71,7 @@ def adapt_batch(params, adapt, loss_tasks, inner, reduce=None):
 
 
 def _gradient(f, theta):
-    return value_and_grads(lambda th: f(th), theta)[1]
+    return value_and_grads(f, theta)[1]
 
 
 # ----------------------------------------------------------------------------------------------------

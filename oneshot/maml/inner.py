@@ -185,19 +185,18 @@ def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False,
     Returns a new dict with the model's keys (learnt step sizes dropped), differentiable to any order
     with respect to `params` (first_order=False).
     """
-    alpha = check_step(alpha, steps)
-    fixed, keys, step_size = split(params, only, alpha, frozen)
-    scale = float(loss_scale)
-    loss = loss_fn if scale == 1.0 else (lambda p, d: scale * loss_fn(p, d))
+    o = InnerLoop(alpha, steps, first_order, only, frozen, clip, loss_scale)     # every option checked, once
+    fixed, keys, step_size = split(params, o.only, o.alpha, o.frozen)
+    loss = loss_fn if o.loss_scale == 1.0 else (lambda p, d: o.loss_scale * loss_fn(p, d))
     theta = {k: params[k] for k in keys}
-    for _ in range(steps):
+    for _ in range(o.steps):
         # first order: the gradient is taken at constants, cut from the outer graph
-        at, shared = (constant(theta), constant(fixed)) if first_order else (theta, fixed)
+        at, shared = (constant(theta), constant(fixed)) if o.first_order else (theta, fixed)
         g = gradient(lambda th: loss({**shared, **th}, demo), at)
         if reduce is not None:
             g = {k: reduce(v) for k, v in g.items()}
-        if clip:
-            g = {k: np.clip(v, -clip, clip) for k, v in g.items()}
+        if o.clip:
+            g = {k: np.clip(v, -o.clip, o.clip) for k, v in g.items()}
         theta = {k: step(theta[k], g[k], step_size[k]) for k in theta}         # eq. (1)
     return {**fixed, **theta}
 
