@@ -34,3 +34,13 @@ def test_a_missing_peer_is_named_with_what_to_install(monkeypatch):
     monkeypatch.setattr(peers, "available", lambda peer: False)
     with pytest.raises(ValueError, match=r"PyTorch is not installed.*pip install"):
         peers.require("torch")
+
+
+@pytest.mark.parametrize("options, inner, named", [
+    ({}, InnerLoop(clip=20.0), "inner clip"), ({}, InnerLoop(loss_scale=250.0), "loss scale"),
+    ({}, InnerLoop(frozen=("ln",)), "never adapt"), ({"layer_norm": True}, InnerLoop(), "layer norm")])
+def test_what_the_peers_do_not_do_is_refused_not_left_out(monkeypatch, options, inner, named):
+    monkeypatch.setattr(peers, "available", lambda peer: True)      # refused before the peer is imported
+    cfg = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5, 4), **options)
+    with pytest.raises(ValueError, match=named):
+        peers.meta_gradient("torch", cfg, inner)

@@ -14,6 +14,8 @@ import importlib.util
 
 import numpy as np
 
+from oneshot.maml.inner import adapted_keys
+
 PEERS = {"torch": "PyTorch", "jax": "JAX"}
 
 
@@ -35,14 +37,17 @@ def meta_gradient(peer, net_cfg, inner):
     """f(params, adapt, evaluate) -> (value, grads) for the peer, numbers as ours: params a dict of
     float32 NumPy arrays (`network.init_params`), adapt and evaluate batched demos (images (B, T, H, W,
     C), states (B, T, 6), actions (B, T, 2)) in network units; value a float, grads NumPy arrays.
-    inner: the `inner.InnerLoop` (alpha, steps, first_order, only; learnt step sizes are not supported).
+    inner: the `inner.InnerLoop` (alpha, steps, first_order, only). The peers are written for the
+    paper's loop: what the released code adds (or learnt step sizes) is refused, not silently left out.
     """
     require(peer)
+    missing = [name for name, used in (("an inner clip", inner.clip), ("an inner loss scale", inner.loss_scale != 1),
+                                       ("parameters that never adapt", inner.frozen),
+                                       ("layer norm", net_cfg.layer_norm)) if used]
+    if missing:
+        raise ValueError(f"the {peer} peer does not do {' or '.join(missing)}; time a profile without them "
+                         f"(default, literal)")
     return (_torch if peer == "torch" else _jax)(net_cfg, inner)
-
-
-def _adapted(keys, only):
-    return [k for k in keys if only is None or k.startswith(tuple(only))]
 
 
 def _positions(h, w):
@@ -82,7 +87,7 @@ def _torch(net_cfg, inner):
         return (r * r).sum()
 
     def meta_objective(p, adapt, evaluate):
-        keys, total = _adapted(p, inner.only), 0.0
+        keys, total = adapted_keys(p, inner.only), 0.0
         for b in range(len(adapt[0])):
             fast = dict(p)
             for _ in range(inner.steps):                            # eq. (1)
@@ -139,7 +144,7 @@ def _jax(net_cfg, inner):
         return jnp.sum(r * r)
 
     def task_objective(p, adapt, evaluate):
-        keys = _adapted(p, inner.only)
+        keys = adapted_keys(p, inner.only)
         theta, fixed = {k: p[k] for k in keys}, {k: v for k, v in p.items() if k not in keys}
         for _ in range(inner.steps):                                # eq. (1)
             g = jax.grad(lambda th: loss({**fixed, **th}, adapt))(theta)
