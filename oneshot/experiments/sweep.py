@@ -1,5 +1,5 @@
 """A sweep of independent runs through any `concurrent.futures.Executor`, resumable, with one CSV row
-per finished run, a summary over seeds and a figure (the machinery of `oneshot.experiments.fig2`).
+per finished run (the machinery of `oneshot.experiments.fig2`; `summary` summarises and draws the rows).
 
     rows = sweep(runs, "results/", "work/", context, executor=None, run_fn=run_one)
 
@@ -28,12 +28,6 @@ from tqdm import tqdm
 from oneshot.experiments.rows import ROW_FILE, COLUMNS, read_rows, row_id, row_of, row_order, write_rows
 from oneshot.tools.files import atomic_write, open_read, open_write
 from oneshot.tools.host import die_with_parent
-
-try:
-    from matplotlib.figure import Figure       # pip install ".[plots]": the figure (no pyplot, no global state)
-except ImportError:
-    Figure = None
-PLOTS = Figure is not None                     # can `plot` draw here?
 
 
 # --- one run, in a worker ----------------------------------------------------------------------------
