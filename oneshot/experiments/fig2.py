@@ -117,11 +117,15 @@ class SweepConfig:
             if c > self.data[0] or d > self.data[1]:
                 raise ValueError(f"size ({c}, {d}) is larger than the collected data {self.data}")
         palette_cfg = PaletteConfig(mode=self.palette_mode)
-        for split, (c, d) in (("train", self.data), ("validation", self.validation), ("test", self.test)):
+        for split, (c, d) in self.splits().items():
             available = len(palette.split_colours(split, palette_cfg))
             if not 1 <= c <= available or d < 2:
                 raise ValueError(f"{split} data of {c} colours x {d} demos: the {self.palette_mode} palette has "
                                  f"{available} {split} colours; need 1..{available} colours and >= 2 demos")
+
+    def splits(self):
+        """{split: (colours, demos)} the sweep collects: meta-training, validation and test."""
+        return {"train": self.data, "validation": self.validation, "test": self.test}
 
 
 PROFILES = {
@@ -143,15 +147,12 @@ def plan(cfg):
     return sorted(runs, key=lambda r: (r.seed, r.size, cfg.methods.index(r.method)))
 
 
-SPLIT_SEEDS = {"train": 0, "validation": 1, "test": 2}   # collect seeds, as every profile's (run_data.SEEDS)
-
-
 def data_paths(cfg, data_dir):
     """{split: dataset path} of a sweep: named by what they hold, so profiles that collect the same data
     share it."""
     folder = os.path.abspath(data_dir)
-    return {split: os.path.join(folder, f"{cfg.palette_mode}_{split}_c{c}_d{d}_s{SPLIT_SEEDS[split]}.npz")
-            for split, (c, d) in (("train", cfg.data), ("validation", cfg.validation), ("test", cfg.test))}
+    return {split: os.path.join(folder, f"{cfg.palette_mode}_{split}_c{c}_d{d}_s{run_data.SEEDS[split]}.npz")
+            for split, (c, d) in cfg.splits().items()}
 
 
 def ensure_data(cfg, data_dir, workers=None, progress=True):
@@ -161,10 +162,10 @@ def ensure_data(cfg, data_dir, workers=None, progress=True):
     world_cfg = WorldConfig(palette=PaletteConfig(mode=cfg.palette_mode))
     expert_cfg = ExpertConfig(action_noise=PROFILES_TRAIN["default"].demo_noise)
     for split, path in data_paths(cfg, data_dir).items():
-        c, d = {"train": cfg.data, "validation": cfg.validation, "test": cfg.test}[split]
+        c, d = cfg.splits()[split]
         if not os.path.exists(path):
             print(f"collecting {path}: {c} {split} colours x {d} demos", file=sys.stderr)
-            data = collection.collect(c, d, split, SPLIT_SEEDS[split], workers, world_cfg, expert_cfg, progress)
+            data = collection.collect(c, d, split, run_data.SEEDS[split], workers, world_cfg, expert_cfg, progress)
             datasets.save(data, path)
 
 
@@ -172,10 +173,10 @@ def run_context(cfg, data_dir="data/fig2"):
     """The small picklable dict every run_fn receives besides its spec and folder: what all runs of the
     sweep share. Paths are absolute (workers may start elsewhere)."""
     paths = data_paths(cfg, data_dir)
-    return {"profile": cfg.name, "data_dir": os.path.abspath(data_dir), "trials": cfg.trials,
+    return {"profile": cfg.name, "trials": cfg.trials,
             "palette_mode": cfg.palette_mode, "eval_seed": cfg.eval_seed, "score": cfg.score, "eval_every": cfg.eval_every,
             "train_data": paths["train"], "validation_data": paths["validation"], "test_data": paths["test"],
-            "demos": {"train": cfg.data[1], "validation": cfg.validation[1], "test": cfg.test[1]}}
+            "demos": {split: d for split, (c, d) in cfg.splits().items()}}
 
 
 # ----------------------------------------------------------------------------------------------------
@@ -187,7 +188,7 @@ def run_config(spec, context):
     `spec.demos` demos of the sweep's meta-training data, one process (the sweep runs several)."""
     demos = context["demos"]
     return dataclasses.replace(
-        LINES[spec.method], **context.get("overrides", {}).get(spec.method, {}),
+        LINES[spec.method],
         train_data=context["train_data"], validation_data=context["validation_data"], test_data=context["test_data"],
         train_demos=demos["train"], validation_demos=demos["validation"], test_demos=demos["test"],
         palette=context["palette_mode"], tasks=spec.colours, demos=spec.demos, seed=spec.seed,
