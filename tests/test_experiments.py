@@ -20,6 +20,7 @@ from oneshot.experiments.summary import plot, summarise
 from oneshot.experiments import rows as sweep_rows
 from oneshot.experiments.rows import COLUMNS, RunSpec
 from oneshot.experiments.sweep import sweep
+from oneshot.tools import cli
 from test_checkpoint import _set, rewrite
 
 TINY = PROFILES["tiny"]
@@ -219,13 +220,19 @@ def test_plot_writes_a_png(tmp_path):
     assert not glob.glob(str(tmp_path / ".tmp-*"))               # atomic: no temporary file left
 
 
-def test_cli_writes_summary_and_says_when_the_plot_needs_matplotlib(tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(command, "run_one", fake_run)      # the default run_fn, in threads
-    monkeypatch.setattr(command, "PLOTS", False)
+@pytest.fixture
+def tiny_argv(tmp_path, monkeypatch):
+    """The fig2 command line of the tiny profile in tmp_path, its runs done by `fake_run` in threads."""
+    monkeypatch.setattr(command, "run_one", fake_run)
     monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor",
                         lambda workers, mp_context, **_: concurrent.futures.ThreadPoolExecutor(workers))
-    argv = ["fig2", "--profile", "tiny", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
+    return ["fig2", "--profile", "tiny", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
             "--data", str(tmp_path / "data"), "--no-progress"]
+
+
+def test_cli_writes_summary_and_says_when_the_plot_needs_matplotlib(tmp_path, monkeypatch, capsys, tiny_argv):
+    monkeypatch.setattr(command, "PLOTS", False)
+    argv = tiny_argv
     assert command.main(argv) == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["runs"] == len(plan(TINY))
@@ -235,14 +242,10 @@ def test_cli_writes_summary_and_says_when_the_plot_needs_matplotlib(tmp_path, mo
     assert not (tmp_path / "out" / "fig2.png").exists()
 
 
-def test_cli_writes_no_summary_until_every_run_finished(tmp_path, monkeypatch, capsys):
+def test_cli_writes_no_summary_until_every_run_finished(tmp_path, monkeypatch, capsys, tiny_argv):
     """Notebook 04 shows a profile's summary.json as its figure: it is written only for the whole sweep."""
-    monkeypatch.setattr(command, "run_one", fake_run)
     monkeypatch.setattr(command, "PLOTS", False)
-    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor",
-                        lambda workers, mp_context, **_: concurrent.futures.ThreadPoolExecutor(workers))
-    argv = ["fig2", "--profile", "tiny", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
-            "--data", str(tmp_path / "data"), "--no-progress"]
+    argv = tiny_argv
     bad = plan(TINY)[0]
     (tmp_path / "w" / bad.run_id).mkdir(parents=True)
     (tmp_path / "w" / bad.run_id / "fail").touch()
@@ -254,14 +257,10 @@ def test_cli_writes_no_summary_until_every_run_finished(tmp_path, monkeypatch, c
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["runs"] == len(plan(TINY))
 
 
-def test_cli_seeds_sweeps_part_of_the_profile_into_files_of_its_own(tmp_path, monkeypatch, capsys):
+def test_cli_seeds_sweeps_part_of_the_profile_into_files_of_its_own(tmp_path, capsys, tiny_argv):
     """--seeds 0: seed 0's runs only; its summary and figure are named for the seed, and the profile's
     summary.json (which notebook 04 reads as the whole figure) is not written."""
-    monkeypatch.setattr(command, "run_one", fake_run)
-    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor",
-                        lambda workers, mp_context, **_: concurrent.futures.ThreadPoolExecutor(workers))
-    argv = ["fig2", "--profile", "tiny", "--out", str(tmp_path / "out"), "--work", str(tmp_path / "w"),
-            "--data", str(tmp_path / "data"), "--no-progress", "--seeds", "1"]
+    argv = tiny_argv + ["--seeds", "1"]
     assert command.main(argv) == 0
     seed1 = [r for r in plan(TINY) if r.seed == 1]
     assert 0 < len(seed1) < len(plan(TINY)) and calls(tmp_path / "w") == len(seed1)
@@ -273,6 +272,25 @@ def test_cli_seeds_sweeps_part_of_the_profile_into_files_of_its_own(tmp_path, mo
     assert command.main(argv[:-2] + ["--seeds", "0", "1"]) == 0              # every seed: the whole figure
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["runs"] == len(plan(TINY))
     assert calls(tmp_path / "w") == len(plan(TINY))                           # seed 1's runs not redone
+
+
+def test_cli_summarise_redoes_a_finished_sweeps_summary_and_refuses_an_unfinished_one(tmp_path, monkeypatch, capsys,
+                                                                                       tiny_argv):
+    monkeypatch.setattr(command, "PLOTS", False)
+    assert command.main(tiny_argv) == 0
+    out = tmp_path / "out"
+    before = json.loads((out / "summary.json").read_text())
+    assert command.main(["summarise", str(out)]) == 0
+    after = json.loads((out / "summary.json").read_text())
+    assert after["summarised_by"] == f"python -m oneshot.experiments summarise {out}"
+    assert (after["command"], after["config"], after["methods"]) == (before["command"], before["config"], before["methods"])
+    (out / "summary.json").unlink()                         # a sweep still running has only its runs.csv
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        cli.run(command.main, ["summarise", str(out)])
+    assert stop.value.code == 2
+    assert capsys.readouterr().err == (f"error: {out} holds no summary.json: summarise redoes a finished sweep's "
+                                       f"summary; finish the sweep first (run its fig2 command again)\n")
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -16,7 +16,7 @@ import pytest
 from oneshot.experiments import rows as sweep_rows
 from oneshot.experiments.rows import RunSpec
 from oneshot.experiments.sweep import SweepLocked, sweep
-from test_experiments import fake_run
+from test_experiments import fake_run, without_time
 
 def calls(run_dir):
     """How many times fake_run ran in this run's folder."""
@@ -34,7 +34,6 @@ def test_rows_the_work_folder_did_not_produce_are_run_again_and_replaced(tmp_pat
     shutil.copytree(tmp_path / "theirs", tmp_path / "results")                   # what a clone holds
     mine = sweep(RUNS, tmp_path / "results", tmp_path / "my_work", CONTEXT, fake_run, progress=False)
     assert all(calls(tmp_path / "my_work" / r.run_id) == 1 for r in RUNS)      # every run done here
-    without_time = lambda rows: [{k: v for k, v in r.items() if k != "wall_seconds"} for r in rows]
     assert without_time(mine) == without_time(committed)                         # the same numbers, here
     again = sweep(RUNS, tmp_path / "results", tmp_path / "my_work", CONTEXT, fake_run, progress=False)
     assert again == mine and all(calls(tmp_path / "my_work" / r.run_id) == 1 for r in RUNS)   # now done

@@ -26,13 +26,12 @@ be a module-level function (it is pickled) and write only inside its `run_dir`.
 import argparse
 import contextlib
 import dataclasses
-import json
 import os
 import shlex
 import signal
 import sys
 
-from oneshot.experiments.fig2 import LABELS, LINES, PROFILES, ensure_data, plan, run_context, run_one
+from oneshot.experiments.fig2 import LABELS, LINES, PROFILES, ensure_data, load_results, plan, run_context, run_one
 from oneshot import methods
 from oneshot.experiments.rows import read_rows
 from oneshot.experiments.summary import PLOTS, compare, plot, summarise, write_summary
@@ -153,16 +152,14 @@ def main(argv=None):
         print(f"{len(rows)} of {len(runs)} runs finished ({os.path.join(out, 'runs.csv')}); run the same "
               f"command again to finish the others: no summary or figure until then")
         return 1
-    adapts = lambda line: methods.of(LINES[line]).adapts
-    pairs = [(a, b) for a in cfg.methods if adapts(a) for b in cfg.methods if not adapts(b)]
-    summary = summarise(rows, cfg, "python -m oneshot.experiments " + shlex.join(argv), pairs)
+    summary = summarise(rows, cfg, "python -m oneshot.experiments " + shlex.join(argv), _pairs(cfg.methods))
     write_summary(summary, os.path.join(out, f"summary{part}.json"))
     print(f"{len(rows)} of {len(runs)} runs finished: {os.path.join(out, 'runs.csv')}, "
           f"{os.path.join(out, f'summary{part}.json')}")
     if not PLOTS:
         print('fig2.png not drawn: the plot needs matplotlib (pip install ".[plots]")')
     elif rows:
-        plot(summary, os.path.join(out, f"fig2{part}.png"), {m: LABELS.get(m, m) for m in LINES},
+        plot(summary, os.path.join(out, f"fig2{part}.png"), _labels(),
              title=f"Figure 2 ({cfg.name} profile, {seeds})")
         print(f"figure: {os.path.join(out, f'fig2{part}.png')}")
     if args.compare:
@@ -170,19 +167,29 @@ def main(argv=None):
     return 0
 
 
+def _pairs(lines):
+    """The paired differences a summary reports: every line that adapts minus every line that does not."""
+    adapts = {line: methods.of(LINES[line]).adapts for line in lines}
+    return [(a, b) for a in lines if adapts[a] for b in lines if not adapts[b]]
+
+
+def _labels():
+    """The figure's legend: each line's label, or its name."""
+    return {m: LABELS.get(m, m) for m in LINES}
+
+
 def _summarise(folder, argv):
     """Summarise a results folder again from its runs.csv, keeping its summary's config and command and
     recording this one (`summarise`, `plot`)."""
-    rows = read_rows(os.path.join(folder, "runs.csv"))
+    if not os.path.isfile(os.path.join(folder, "summary.json")):
+        raise ValueError(f"{folder} holds no summary.json: summarise redoes a finished sweep's summary; finish the "
+                         f"sweep first (run its fig2 command again)")
+    rows, before = load_results(folder)
     if not rows:
         print(f"error: {folder} holds no runs.csv rows to summarise", file=sys.stderr)
         return 2
-    with open(os.path.join(folder, "summary.json")) as f:
-        before = json.load(f)
     lines = [m for m in before.get("config", {}).get("methods", LINES) if m in LINES]
-    adapts = lambda line: methods.of(LINES[line]).adapts
-    summary = summarise(rows, None, before.get("command"), [(a, b) for a in lines if adapts(a) for b in lines
-                                                             if not adapts(b)])
+    summary = summarise(rows, None, before.get("command"), _pairs(lines))
     config = dict(before.get("config") or {})
     config.setdefault("score", "validation")   # a sweep from before the test split scored what is now validation
     summary.update(config=config, summarised_by="python -m oneshot.experiments " + shlex.join(argv))
@@ -190,7 +197,7 @@ def _summarise(folder, argv):
     print(f"{len(rows)} runs: {os.path.join(folder, 'summary.json')}")
     if PLOTS:
         name = (before.get("config") or {}).get("name", "")
-        plot(summary, os.path.join(folder, "fig2.png"), {m: LABELS.get(m, m) for m in LINES},
+        plot(summary, os.path.join(folder, "fig2.png"), _labels(),
              title=f"Figure 2 ({name} profile, {len({r['seed'] for r in rows})} seeds)")
     return 0
 
@@ -216,4 +223,4 @@ def _compare(rows, folder):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli.run(main))
