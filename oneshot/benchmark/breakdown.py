@@ -28,6 +28,7 @@ import time
 import numpy as np
 
 from oneshot.benchmark.maml import bench_setup, synthetic_demos
+from oneshot.experiments.fig2 import PROFILES
 from oneshot.maml import imitation, inner, shards
 from oneshot.policy import affine, conv, layers, network
 from oneshot.tools import host
@@ -40,7 +41,8 @@ GROUPS = {
                       (conv, "_col2im_any")],
 }
 EXCHANGE = [shards.Exchange.sum]
-FIGURE2_TRIALS = 120            # held-out trials of a Figure 2 run (12 colours x 10), each scored adapted and not
+PAPER = PROFILES["paper"]
+FIGURE2_TRIALS = PAPER.test[0] * PAPER.trials   # scored trials of a Figure 2 run, each adapted and not (MIL)
 
 
 def _code_key(f):
