@@ -105,12 +105,12 @@ def read_rows(path):
 
 
 def row_order(row):
-    """The order of runs.csv: (method, size, seed)."""
+    """The order of runs.csv: (method, size, seed, iterations)."""
     return row["method"], row["size"], row["seed"], row["iterations"]
 
 
 def write_rows(rows, path):
-    """Write runs.csv atomically, sorted by (method, size, seed): never half a file at `path`."""
+    """Write runs.csv atomically, sorted by `row_order`: never half a file at `path`."""
     text = io.StringIO()
     writer = csv.DictWriter(text, fieldnames=COLUMNS, lineterminator="\n")
     writer.writeheader()
