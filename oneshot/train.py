@@ -21,7 +21,6 @@ import numpy as np
 
 from oneshot import methods
 from oneshot.maml import shards
-from oneshot.methods import mil
 from oneshot.methods.mil import INNER_PARAMS
 from oneshot.tools import cli, host
 from oneshot.training import checkpoint, run_data
@@ -107,8 +106,8 @@ def main(argv=None):
     if method.shards > frames:
         p.error(f"argument --shards: the processes share each demo's {frames} frames, so 1 to {frames}; "
                 f"got {cfg.shards}")
-    if method.adapts:
-        print(mil.describe(cfg))                    # in both loss conventions
+    if method.describe():
+        print(method.describe())
     host.tune_malloc()
     t0 = time.perf_counter()
     previous = signal.signal(signal.SIGTERM, _terminate)    # a plain kill stops training as Ctrl-C does

@@ -138,6 +138,11 @@ def test_the_mil_method_trains_and_tests_with_the_inner_loop_of_its_config():
     assert json.dumps(InnerLoop(0.1, np.int64(2)).options()) == ('{"alpha": 0.1, "steps": 2, "first_order": false, '
                                                                  '"only": null, "frozen": [], "clip": 0.0, '
                                                                  '"loss_scale": 1.0}')
+    released = methods.of(config.PROFILES["released"]).describe()     # what `train` prints first
+    assert released.startswith("eq. (1): 1 step(s) of ") and "inner gradient clipped to +-20 " in released
+    assert methods.of(cfg).describe().startswith("eq. (1): 2 step(s) of 0.1 on 1 x eq. (2)")
+    assert all(methods.of(dataclasses.replace(cfg, method=name)).describe() == "" for name in methods.NAMES
+               if name != "mil")
 
 
 def test_the_released_inner_loop_options_differentiate_to_second_order_and_do_what_they_say(rng):

@@ -80,6 +80,10 @@ class Method:
         """condition(demo) -> the policy without adaptation (only for methods that adapt)."""
         raise ValueError(f"the {self.name!r} method does not adapt to a demonstration; it has no unadapted policy")
 
+    def describe(self):
+        """What training will do, in a line that `train` prints first ("" for nothing to add)."""
+        return ""
+
     def notes(self, params):
         """What a Figure 2 row records about the trained parameters beyond its score (a dict)."""
         return {}

@@ -66,6 +66,10 @@ class MIL(Method):
         """The second-order meta-gradient, each of cfg.shards processes on its block of frames."""
         return shards.meta_gradient(params, adapt, evaluate, (imitation_loss, self.inner), self.cfg.shards, pool)
 
+    def describe(self):
+        """Eq. (1) of its config in both loss conventions (`describe`)."""
+        return describe(self.cfg)
+
     def meta_gradient_flops(self, net_cfg, T, tasks):
         """3 (3 s + 1) forward passes per task for s inner steps: each inner step records a forward and a
         backward pass (~3 forward passes), the outer loss one more, and the meta-gradient's backward pass
