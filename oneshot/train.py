@@ -65,10 +65,10 @@ def main(argv=None):
         cli.writable_folder(run)
     except argparse.ArgumentTypeError as e:
         p.error(f"argument --run: {e}")
+    stored = checkpoint.load(os.path.join(run, "checkpoint.npz"))["config"] if args.resume else None
     if args.resume and args.profile is None:   # the run's own config; flags may change only RESUMABLE fields
-        cfg = dataclasses.replace(checkpoint.load(os.path.join(run, "checkpoint.npz"))["config"], **overrides)
+        cfg = dataclasses.replace(stored, **overrides)
     elif args.resume:                          # the profile named, as the checkpoint has what may change
-        stored = checkpoint.load(os.path.join(run, "checkpoint.npz"))["config"]
         cfg = dataclasses.replace(PROFILES[profile], **overrides)
         cfg = dataclasses.replace(cfg, **{k: getattr(stored, k) for k in RESUMABLE if k not in overrides})
     else:
@@ -94,7 +94,7 @@ def main(argv=None):
                     cli.writable_file(path)
                 except argparse.ArgumentTypeError as e:
                     p.error(f"argument --{split}-data: {e}")
-                tasks = len(palette.split_colours(split, world.palette))
+                tasks = run_data.tasks(cfg, split)
                 cli.check_memory(cli.dataset_bytes(tasks, demos, world.horizon, world.image_size, world.n_objects),
                                  f"collecting the missing {path} ({tasks} tasks x {demos} demos)",
                                  f"use a smaller {flag}")

@@ -35,7 +35,6 @@ from oneshot.world.reach import WorldConfig
 
 FORMAT_VERSION = 1
 
-atomic_write = files.atomic_write      # where it was first defined; write files with files.atomic_write
 
 # What each of the 6 numbers of a state is (`reach.observation_state`; the angles and velocities are
 # arm.py's x = (q1, q2, qd1, qd2)): radians, radians per second, metres. Saved in the metadata as
@@ -170,7 +169,7 @@ def save(dataset, path):
     check_metadata(metadata, layout_of(arrays))
     meta = dict(metadata, format_version=FORMAT_VERSION, state_layout=list(STATE_LAYOUT),
                 checksum=checksum(arrays))
-    with atomic_write(path) as f:
+    with files.atomic_write(path) as f:
         npz.write(f, {"metadata": np.array(json.dumps(meta, sort_keys=True)), **arrays})
     return meta
 

@@ -32,12 +32,16 @@ def spec(cfg, split):
     return path, demos, SEEDS[split]
 
 
+def tasks(cfg, split):
+    """How many colours a TrainConfig's `split` holds in its palette (every one is collected)."""
+    return len(palette.split_colours(split, PaletteConfig(mode=cfg.palette)))
+
+
 def collect_command(cfg, split):
     """The `python -m oneshot.collect` command that makes a TrainConfig's dataset of `split`: every colour
     of the split, the profile's demos per colour, seed, noise and palette."""
     path, demos, seed = spec(cfg, split)
-    tasks = len(palette.split_colours(split, PaletteConfig(mode=cfg.palette)))
-    words = ["python", "-m", "oneshot.collect", "--out", path, "--split", split, "--tasks", str(tasks),
+    words = ["python", "-m", "oneshot.collect", "--out", path, "--split", split, "--tasks", str(tasks(cfg, split)),
              "--demos", str(demos), "--seed", str(seed), "--noise", f"{cfg.demo_noise:g}"]
     return shlex.join(words + (["--palette", cfg.palette] if cfg.palette != "hues" else []))
 
@@ -87,8 +91,7 @@ def ensure(cfg, splits=("train", "validation"), progress=True):
         if not os.path.exists(path):
             print(f"{path} is missing: collecting it ({collect_command(cfg, split)})", file=sys.stderr)
             world_cfg = WorldConfig(palette=PaletteConfig(mode=cfg.palette))
-            tasks = len(palette.split_colours(split, world_cfg.palette))
-            datasets.save(collection.collect(tasks, demos, split, seed, progress=progress, world_cfg=world_cfg,
+            datasets.save(collection.collect(tasks(cfg, split), demos, split, seed, progress=progress, world_cfg=world_cfg,
                                              expert_cfg=ExpertConfig(action_noise=cfg.demo_noise)), path)
         out.append(load(cfg, split))
     return out
