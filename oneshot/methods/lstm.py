@@ -6,6 +6,8 @@ features and the state, and the fully connected layers output the action (Duan e
 Imitation Learning"; the paper: an LSTM of 512 units on the trunk's final-layer features). Trained on
 the same demonstrations, loss (eq. 2), meta-batches, trunk and widths as MIL's policy.
 """
+import dataclasses
+
 import autograd.numpy as anp
 import numpy as np
 
@@ -13,16 +15,14 @@ from oneshot.maml import batched
 from oneshot.methods.base import Method
 from oneshot.policy import network
 from oneshot.policy.layers import add_bias, concat_last, matmul
-from oneshot.policy.network import NetworkConfig, head, init_params, trunk
+from oneshot.policy.network import head, init_params, trunk
 
 
 def lstm_network_config(net_cfg, units):
     """The NetworkConfig of the LSTM policy's trunk and head: the head's input is the current frame's
-    features, the state and the LSTM's summary of the demo (`units` numbers, counted as extra state)."""
-    return NetworkConfig(image_size=net_cfg.image_size, channels=net_cfg.channels, kernel=net_cfg.kernel,
-                         hidden=net_cfg.hidden, state_dim=net_cfg.state_dim + units,
-                         action_dim=net_cfg.action_dim, feature_points=net_cfg.feature_points,
-                         layer_norm=net_cfg.layer_norm)
+    features, the state and the LSTM's summary of the demo (`units` numbers, counted as extra state); no
+    bias transformation (the summary takes its place)."""
+    return dataclasses.replace(net_cfg, state_dim=net_cfg.state_dim + units, bias_transform=0)
 
 
 def lstm_init_params(net_cfg, units, rng, dtype=np.float32):
