@@ -49,7 +49,7 @@ def main(argv=None):
     kinds_of["never_adapt"] = _prefixes
     kinds_of.update(train_demos=cli.at_least(2, " (MAML adapts on one demo and scores another)"),
                     validation_demos=cli.at_least(2, " (one to adapt on, another to evaluate)"))
-    choices = {"lr_schedule": ("constant", "cosine"), "inner_params": sorted(INNER_PARAMS), "method": methods.NAMES,
+    choices = {"lr_schedule": ("constant", "cosine"), "inner_params": sorted(INNER_PARAMS), "method": list(methods.REGISTRY),
                "palette": palette.MODES}
     for field in dataclasses.fields(TrainConfig):
         text = f"override the profile's {field.name}" + (" (true/false)" if field.type is bool else "")

@@ -110,7 +110,7 @@ def test_round_trip_with_the_world_and_a_checksum(tmp_path):
     assert checkpoint.load(tmp_path / "timed.npz")["seconds"] == 12.5 and ckpt["seconds"] is None
 
 
-@pytest.mark.parametrize("method", methods.NAMES)
+@pytest.mark.parametrize("method", list(methods.REGISTRY))
 def test_every_method_round_trips(tmp_path, method):
     cfg = dataclasses.replace(config.TrainConfig(), method=method, lstm_units=3, ema=0.5)
     saved = save_tiny(tmp_path / "c.npz", cfg, methods.of(cfg).network_config(8))

@@ -48,7 +48,7 @@ def main(argv=None):
                    help="meta-iterations timed; the median is reported (default 20)")
     m.add_argument("--profile", choices=sorted(PROFILES), default="default",
                    help="the training profile whose meta-iteration is timed (default: default)")
-    m.add_argument("--method", choices=[n for n in methods.NAMES if methods.REGISTRY[n].learns], default=None,
+    m.add_argument("--method", choices=[n for n, m in methods.REGISTRY.items() if m.learns], default=None,
                    help="time a baseline's iteration (same meta-batch, trunk and widths) instead of MIL's")
     m.add_argument("--lstm-units", type=cli.positive_int, default=None, help="override the LSTM baseline's width")
     m.add_argument("--first-order", action="store_true", help="time the first-order approximation")

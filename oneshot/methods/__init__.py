@@ -15,11 +15,10 @@ from oneshot.methods.mil import MIL
 from oneshot.methods.random_policy import RandomPolicy
 
 REGISTRY = {method.name: method for method in (MIL, Contextual, LSTM, RandomPolicy)}
-NAMES = tuple(REGISTRY)
 
 
 def of(cfg):
     """The method `cfg.method` names, bound to cfg (a TrainConfig). Raises ValueError for an unknown name."""
     if cfg.method not in REGISTRY:
-        raise ValueError(f"method must be one of {', '.join(NAMES)}; got {cfg.method!r}")
+        raise ValueError(f"method must be one of {', '.join(REGISTRY)}; got {cfg.method!r}")
     return REGISTRY[cfg.method](cfg)
