@@ -135,7 +135,7 @@ def load(path):
     except ValueError as e:
         raise CheckpointError(f"{path!r}: meta 'config': {e}; {FIX}") from e
     world = meta["world"]
-    if world is not None and _world(world, f"{path!r}: meta 'world'")["image_size"] != net_cfg.image_size:
+    if world is not None and world_fields(world, f"{path!r}: meta 'world'")["image_size"] != net_cfg.image_size:
         raise CheckpointError(f"{path!r}: meta 'world' has image_size {world['image_size']} but its "
                               f"network {net_cfg.image_size}; {FIX}")
 
@@ -264,7 +264,7 @@ def _compare(path, arrays, expected, only_these=False):
         raise CheckpointError(f"{path!r} has an unexpected array {extra[0]!r} {arrays[extra[0]].shape}; {FIX}")
 
 
-def _world(world, where, fix=FIX):
+def world_fields(world, where, fix=FIX):
     """The fields of a world dict that a checkpoint depends on: {"image_size", "horizon", "max_torque",
     "palette" (a PaletteConfig)}. Raises CheckpointError naming `where` (and `fix`) if one is missing
     or malformed."""

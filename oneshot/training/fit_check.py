@@ -8,7 +8,7 @@ import dataclasses
 import json
 
 from oneshot.data import datasets
-from oneshot.training.checkpoint import CheckpointError, _world
+from oneshot.training.checkpoint import CheckpointError, world_fields
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
 
@@ -35,12 +35,12 @@ def check_data(ckpt, metadata, ckpt_path, data_path, palette=True):
     A state layout is compared when both record one (datasets and checkpoints recording none have
     `datasets.STATE_LAYOUT`)."""
     trained = ckpt["world"]
-    mine = _world(trained, f"{ckpt_path}: meta 'world'") if trained is not None else \
+    mine = world_fields(trained, f"{ckpt_path}: meta 'world'") if trained is not None else \
         {"image_size": ckpt["network"].image_size}
     remake = "re-create it with `python -m oneshot.collect`"
     if not isinstance(metadata.get("world"), dict):
         raise CheckpointError(f"{data_path} records no world config in its metadata; {remake}")
-    theirs = _world(metadata["world"], f"{data_path}: metadata 'world'", remake)
+    theirs = world_fields(metadata["world"], f"{data_path}: metadata 'world'", remake)
 
     def refuse(was, holds, fix):
         raise CheckpointError(f"{ckpt_path} was trained on {was} but {data_path} holds {holds}; {fix}")
