@@ -38,7 +38,7 @@ GROUPS = {
     "conv_products": [(conv, "conv"), (affine, "matmul")],
     "transposed_products": [(conv, "conv_dx"), (conv, "conv_dw"), (affine, "matmul_dx"), (affine, "matmul_dw")],
     "im2col_col2im": [(conv, "im2col"), (conv, "col2im"), (conv, "_patches"), (conv, "_col2im_3x3_stride2"),
-                      (conv, "_col2im_any")],
+                      (conv, "_col2im_any"), (conv, "_col2im_into")],
 }
 EXCHANGE = [shards.Exchange.sum]
 PAPER = PROFILES["paper"]
