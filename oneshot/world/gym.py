@@ -145,7 +145,6 @@ class ReachEnv(gymnasium.Env):
         self.world = ReachWorld(config)
         self.target_colour = target_colour
         self.render_mode = render_mode
-        self._rgb = palette.palette_rgb(config.palette)           # (n_colours, 3) uint8
 
         max_angle, max_velocity = state_bounds(config)
         arena = config.arena_half_width
@@ -215,7 +214,7 @@ class ReachEnv(gymnasium.Env):
         # The world also keeps obs["end_effector"] in its success history; hand out a copy so that
         # writing into the observation cannot change the episode's outcome.
         return {**obs, "end_effector": obs["end_effector"].copy(),
-                "target_rgb": self._rgb[self.world.scene.target_colour].copy()}
+                "target_rgb": self.world._rgb[self.world.scene.target_colour].copy()}   # the world's palette
 
     @staticmethod
     def _info(info):

