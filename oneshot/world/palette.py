@@ -203,10 +203,14 @@ def colour_name(i, cfg=PaletteConfig()):
     return f"{name}, sat {s:g}, val {v:g}"
 
 
-def check_colour(colour, split, cfg=PaletteConfig()):
-    """Raise ValueError unless `colour` is a palette index belonging to `split`."""
+def check_colour(colour, split, cfg=PaletteConfig(), name="colour"):
+    """Raise ValueError unless `colour` is a palette index belonging to `split`: a Python or NumPy int, not
+    a bool (which NumPy reads as 0 or 1) nor a float. name: what the message calls it."""
+    if isinstance(colour, (bool, np.bool_)) or not isinstance(colour, (int, np.integer)):
+        raise ValueError(f"{name} must be an int; got {colour!r} ({type(colour).__name__}); "
+                         f"choose one of oneshot.world.palette.split_colours({split!r})")
     allowed = split_colours(split, cfg)
-    if not (np.issubdtype(type(colour), np.integer) or isinstance(colour, int)) or colour not in allowed:
+    if colour not in allowed:
         shown = allowed.tolist() if len(allowed) <= 48 else f"split_colours({split!r}, cfg) ({len(allowed)})"
         raise ValueError(f"colour {colour!r} is not a {split!r} colour; choose a palette index from {shown}")
 
@@ -216,7 +220,7 @@ def sample_scene_colours(target, n_objects, split, rng, cfg=PaletteConfig()):
 
     target: palette index; returns (n_objects,) int with pairwise hue distance >= min_separation_deg.
     """
-    check_colour(target, split, cfg)
+    check_colour(target, split, cfg, name="target_colour")
     chosen = [int(target)]
     candidates = split_colours(split, cfg)
     for _ in range(n_objects - 1):
