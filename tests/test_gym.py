@@ -310,6 +310,15 @@ def test_bool_and_float_target_colours_are_refused_not_read_as_indices():
         _one_line_error(lambda: ReachEnv(**{name: value}), rf"{name} must be an int")
 
 
+
+def test_a_reset_checks_its_target_colour_once(monkeypatch):
+    """The world checks the colour it is given; the env no longer checks it a second time first."""
+    calls, check = [], palette.check_colour
+    monkeypatch.setattr(palette, "check_colour", lambda *a, **k: calls.append(a[0]) or check(*a, **k))
+    env = ReachEnv()
+    env.reset(seed=0, options={"target_colour": 5})
+    assert calls == [5]
+
 def test_complex_or_non_numeric_actions_are_refused_not_truncated():
     env = ReachEnv()
     env.reset(seed=0)

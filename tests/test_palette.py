@@ -1,6 +1,7 @@
 """The palette (oneshot.world.palette): "hues" mode pinned bit for bit, the "grid" mode's counts, split margins
 and scene sampling, and a grid palette end to end through the world, the expert, collection and a saved
 dataset."""
+import colorsys
 import dataclasses
 import hashlib
 import json
@@ -164,6 +165,39 @@ def test_grid_colours_outside_the_split_are_refused():
     with pytest.raises(ValueError, match=r"\[0, 696\)"):
         palette.colour_name(696, GRID)
 
+
+
+CUSTOM = PaletteConfig(size=24, heldout_every=3, saturations=(0.9, 0.4), values=(0.7,), test_colours=((5.0, 0.5, 0.5),))
+
+
+def reference_rgb(cfg):
+    """palette_rgb written colour by colour from the module docstring's index layout, with colorsys."""
+    rows, held = [], palette.heldout_hues(cfg).tolist()
+    for i in range(palette.n_colours(cfg)):
+        if i < palette.n_grid(cfg):
+            hue, offset = i // palette.per_hue(cfg), 0.0
+            s, v = divmod(i % palette.per_hue(cfg), len(cfg.values))
+            s, v = cfg.saturations[s], cfg.values[v]
+        else:
+            k, j = divmod(i - palette.n_grid(cfg), len(cfg.test_colours))
+            hue, (offset, s, v) = held[k], cfg.test_colours[j]
+        rows.append(colorsys.hsv_to_rgb((hue * 360.0 / cfg.size + offset) % 360.0 / 360.0, s, v))
+    return np.round(np.array(rows) * 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("cfg, digest", [
+    (PaletteConfig(), "08d793c2f274e373d5cd9c85ab5b75edfb3ab313a73ae82adc2eb335a9e9e02c"),
+    (GRID, "822ca879abac236410c943bb4d11655cdc6f0fac37a4b9b4d37da990703c4547"),
+    (CUSTOM, "dc36bd48158808f3b41aede3661b48581b42c849ffbaf42603faf6869a53e27b")], ids=["hues", "grid", "custom"])
+def test_palette_rgb_is_the_colour_by_colour_reference_bit_for_bit(cfg, digest):
+    """Every colour of every mode (test colours included) equals the per-colour reference exactly, and the
+    whole palette its pinned digest (the values before palette_rgb was vectorised)."""
+    rgb = palette.palette_rgb(cfg)
+    assert rgb.dtype == np.uint8 and np.array_equal(rgb, reference_rgb(cfg))
+    assert hashlib.sha256(rgb.tobytes()).hexdigest() == digest
+    i = np.arange(palette.n_colours(cfg))
+    levels = np.stack(palette.colour_levels(i, cfg), -1)              # broadcasts, as colour_hue_deg does
+    assert levels.tolist() == [list(palette.colour_levels(int(k), cfg)) for k in i]
 
 # --- a grid palette end to end ----------------------------------------------------------------------
 

@@ -140,6 +140,61 @@ def test_bad_input_is_rejected_with_a_message_naming_the_fix():
         WorldConfig(min_separation=0.09)
 
 
+
+def one_line_error(call, match):
+    with pytest.raises(ValueError, match=match) as error:
+        call()
+    assert "\n" not in str(error.value)
+
+
+def test_bool_and_float_colours_and_sizes_are_refused_where_they_enter():
+    """True was colour 1 and 5.0 "not a 'train' colour" though 5 is one; image_size=32.0 was taken. The
+    world refuses them itself, not only behind the Gymnasium env."""
+    for colour in (True, np.True_, False, 5.0, np.float64(5.0), "5"):
+        one_line_error(lambda: palette.check_colour(colour, "train"), r"colour must be an int; .* "
+                       r"choose one of oneshot.world.palette.split_colours\('train'\)")
+        one_line_error(lambda: ReachWorld().reset(seed=0, options={"target_colour": colour}),
+                       r"target_colour must be an int")
+    palette.check_colour(np.int64(5), "train")                 # NumPy ints are palette indices
+    for name, value in (("image_size", 32.0), ("horizon", True), ("n_objects", 3.0)):
+        one_line_error(lambda: WorldConfig(**{name: value}), rf"{name} must be an int; got {value!r}")
+    assert type(WorldConfig(image_size=np.int64(16)).image_size) is int     # a plain int, as JSON saves it
+
+
+def test_hostile_scenes_are_refused_by_the_world_and_a_good_one_is_copied():
+    """A NaN position made every reward NaN; float colours were a raw IndexError when drawn."""
+    world = ReachWorld()
+    good = Scene(np.array([0, 16, 32]), np.array([[0.1, 0.0], [-0.1, 0.0], [0.0, 0.15]]), target=0)
+    for positions in ([[np.nan, 0.0], [-0.1, 0.0], [0.0, 0.15]], [[0.1, np.inf], [-0.1, 0.0], [0.0, 0.15]],
+                      [[0.1, 0.0], [-0.1, 0.0], [0.0, 0.3]], [[0.1 + 1j, 0], [-0.1, 0], [0, 0.15]]):
+        one_line_error(lambda: world.reset(options={"scene": Scene(good.colours, np.array(positions), 0)}),
+                       r"reset option 'scene': positions must be finite metres inside the arena .* replace the NaN")
+    for colours in ([0.0, 16.0, 32.0], [0.5, 16, 32], [True, False, False]):
+        one_line_error(lambda: world.reset(options={"scene": Scene(np.array(colours), good.positions, 0)}),
+                       r"reset option 'scene': colours must be integer palette indices; .* dtype=int")
+    for target in (True, 0.0):
+        one_line_error(lambda: world.reset(options={"scene": Scene(good.colours, good.positions, target)}),
+                       r"reset option 'scene': target must be an int")
+    one_line_error(lambda: world.reset(options={"scene": {"colours": [0, 16, 32]}}),
+                   r"reset option 'scene' must be a oneshot.world.reach.Scene; got dict")
+    positions = good.positions.copy()
+    world.reset(options={"scene": Scene(np.array([0, 16, 32]), positions, 0)})
+    positions[:] = np.nan                                      # the caller's array, after the reset
+    assert world.step(np.zeros(2))[4]["target_position"].tolist() == [0.1, 0.0]
+
+
+def test_complex_or_non_numeric_actions_are_refused_not_truncated():
+    """np.asarray(action, dtype=float) dropped a complex torque's imaginary part (with only a warning),
+    read the string "0.1" as 0.1 and True as 1 N m."""
+    world = ReachWorld()
+    world.reset(seed=0)
+    for action in (np.array([0.1 + 0.4j, 0.0]), [0.1j, 0], np.array(["0.1", "0.2"]), np.array([True, False])):
+        one_line_error(lambda: world.step(action), r"action must be \(2,\) real joint torques in N m; got .* float array")
+    assert world.t == 0                                        # nothing was applied
+    for action in (np.array([0.1, -0.2], np.float32), np.array([0, 1]), [0.1, -0.2]):
+        world.step(action)                                     # real torques of any real dtype still work
+    assert world.t == 3
+
 def test_heldout_world_uses_only_validation_colours():
     world = ReachWorld(dataclasses.replace(WorldConfig(), split="validation"))
     held = set(palette.split_colours("validation").tolist())

@@ -40,7 +40,7 @@ from oneshot import GYM_ENV_ID as ENV_ID  # noqa: F401 (re-exported: the id, her
 from oneshot.tools import viz
 from oneshot.world import palette, render
 from oneshot.world.palette import PaletteConfig
-from oneshot.world.reach import ReachWorld, Scene, WorldConfig
+from oneshot.world.reach import ReachWorld, WorldConfig, check_int
 
 OPTIONS = ("target_colour", "scene")
 RENDER_SCALE = 4          # render() shows each image pixel as a 4x4 block: 128x128 for 32x32 images
@@ -67,41 +67,6 @@ def state_bounds(config):
     # start_noise draws q0 from a Gaussian: 8 standard deviations are never exceeded in practice.
     start = np.max(np.abs(arm.q0)) + 8 * config.start_noise
     return start + u * t ** 2 / (2 * lambda_min), u * t / lambda_min
-
-
-def check_int(name, value, fix):
-    """`value` as an int if it is a Python or NumPy integer (not a bool, which is 0 or 1 to NumPy, nor a
-    float); else ValueError naming `name` and `fix`."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name} must be an int; got {value!r} ({type(value).__name__}); {fix}")
-    return int(value)
-
-
-def check_target_colour(colour, split, cfg):
-    """The palette index `colour` as an int, if it belongs to `split`; else a ValueError naming the fix."""
-    fix = f"choose one of oneshot.world.palette.split_colours({split!r})"
-    palette.check_colour(check_int("target_colour", colour, fix), split, cfg)
-    return int(colour)
-
-
-def check_scene(scene, cfg):
-    """A copy of `scene` (so that writing into the caller's arrays cannot move the env's discs), if it is a
-    `Scene` the env can show: integer palette indices, finite positions inside the arena (metres), an int
-    target index; else a ValueError naming the reset option and the fix. The world then checks the
-    shapes and that the indices are in range. cfg: the WorldConfig."""
-    fix = "build one with oneshot.world.reach.Scene(colours, positions, target), or sample_scene"
-    if not isinstance(scene, Scene):
-        raise ValueError(f"reset option 'scene' must be a oneshot.world.reach.Scene; got {type(scene).__name__}; {fix}")
-    colours, positions = np.asarray(scene.colours), np.asarray(scene.positions)
-    if colours.dtype.kind not in "iu":
-        raise ValueError(f"reset option 'scene': colours must be integer palette indices; got {colours.dtype} "
-                         f"{colours.tolist()}; pass np.array(colours, dtype=int)")
-    a = cfg.arena_half_width
-    if positions.dtype.kind not in "iuf" or not np.all(np.abs(positions) <= a):     # False for NaN too
-        raise ValueError(f"reset option 'scene': positions must be finite metres inside the arena [-{a}, {a}]^2; "
-                         f"got {positions.tolist()}; replace the NaN, inf or outside positions")
-    target = check_int("reset option 'scene': target", scene.target, "pass the index of the target object")
-    return Scene(colours.copy(), positions.astype(float), target)
 
 
 def vector_env(num_envs=1, max_episode_steps=None, **kwargs):
@@ -136,21 +101,19 @@ class ReachEnv(gymnasium.Env):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}; "
                              f"got {render_mode!r}")
-        image_size = check_int("image_size", image_size, "pass the image's side in pixels, e.g. 32")
-        horizon = check_int("horizon", horizon, "pass the number of steps per episode, e.g. 20")
         config = WorldConfig(palette=PaletteConfig(mode=palette_mode), split=split,
-                             image_size=image_size, horizon=horizon)
-        if target_colour is not None:
-            target_colour = check_target_colour(target_colour, split, config.palette)
+                             image_size=image_size, horizon=horizon)         # checks that both are ints
+        if target_colour is not None:           # every episode's, so refused now, not at the first reset
+            palette.check_colour(target_colour, split, config.palette, name="target_colour")
+            target_colour = int(target_colour)
         self.world = ReachWorld(config)
         self.target_colour = target_colour
         self.render_mode = render_mode
-        self._rgb = palette.palette_rgb(config.palette)           # (n_colours, 3) uint8
 
         max_angle, max_velocity = state_bounds(config)
         arena = config.arena_half_width
         self.observation_space = spaces.Dict({
-            "image": spaces.Box(0, 255, (image_size, image_size, 3), np.uint8),
+            "image": spaces.Box(0, 255, (config.image_size, config.image_size, 3), np.uint8),
             "joint_angles": spaces.Box(-max_angle, max_angle, (2,), np.float64),
             "joint_velocities": spaces.Box(-max_velocity, max_velocity, (2,), np.float64),
             "end_effector": spaces.Box(-arena, arena, (2,), np.float64),
@@ -171,13 +134,9 @@ class ReachEnv(gymnasium.Env):
         unknown = set(options) - set(OPTIONS)
         if unknown:
             raise ValueError(f"unknown reset options {sorted(unknown)}; use {OPTIONS}")
-        cfg = self.world.config
-        if "scene" in options:
-            options["scene"] = check_scene(options["scene"], cfg)
-        elif options.get("target_colour") is not None:
-            options["target_colour"] = check_target_colour(options["target_colour"], cfg.split, cfg.palette)
-        else:
+        if "scene" not in options and options.get("target_colour") is None:
             options["target_colour"] = self.target_colour
+        # The world checks the scene or target colour (and copies the scene), as it does for any caller.
         world_seed = int(self.np_random.integers(2 ** 63))
         obs, info = self.world.reset(seed=world_seed, options=options)
         return self._observation(obs), self._info(info)
@@ -188,10 +147,6 @@ class ReachEnv(gymnasium.Env):
         Returns (obs, reward, terminated, truncated, info): terminated is always False; truncated is
         True after `horizon` steps, and then info["success"] is the episode's outcome.
         """
-        action = np.asarray(action)
-        if action.dtype.kind not in "iuf":       # a complex torque would lose its imaginary part unseen
-            raise ValueError(f"action must be (2,) real joint torques in N m; got {action.dtype} {action.tolist()}; "
-                             f"pass a float array (np.real(action) drops an imaginary part)")
         obs, reward, terminated, truncated, info = self.world.step(action)
         return self._observation(obs), reward, terminated, truncated, self._info(info)
 
@@ -215,7 +170,7 @@ class ReachEnv(gymnasium.Env):
         # The world also keeps obs["end_effector"] in its success history; hand out a copy so that
         # writing into the observation cannot change the episode's outcome.
         return {**obs, "end_effector": obs["end_effector"].copy(),
-                "target_rgb": self._rgb[self.world.scene.target_colour].copy()}
+                "target_rgb": self.world._rgb[self.world.scene.target_colour].copy()}   # the world's palette
 
     @staticmethod
     def _info(info):

@@ -29,6 +29,14 @@ from oneshot.world.arm import ArmConfig
 from oneshot.world.palette import PaletteConfig
 
 
+def check_int(name, value, fix):
+    """`value` as an int if it is a Python or NumPy integer (not a bool, which is 0 or 1 to NumPy, nor a
+    float); else ValueError naming `name` and `fix`."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an int; got {value!r} ({type(value).__name__}); {fix}")
+    return int(value)
+
+
 @dataclass(frozen=True)
 class WorldConfig:
     """Everything a scene and an episode depend on: the arm, the colours, the arena, the task's
@@ -48,6 +56,10 @@ class WorldConfig:
     start_noise: float = 0.0          # std of noise on the start pose, radians
 
     def __post_init__(self):
+        for name, fix in (("image_size", "pass the image's side in pixels, e.g. 32"),
+                          ("horizon", "pass the number of steps per episode, e.g. 20"),
+                          ("n_objects", "pass the number of discs per scene, e.g. 3")):
+            object.__setattr__(self, name, check_int(name, getattr(self, name), fix))
         if self.image_size < 8:
             raise ValueError(f"image_size must be at least 8 pixels; got {self.image_size}")
         if self.horizon < 5:
@@ -100,6 +112,33 @@ class Scene:
     @property
     def target_position(self):
         return self.positions[self.target]
+
+
+def check_scene(scene, cfg):
+    """A copy of `scene` (so that writing into the caller's arrays cannot move the world's discs), if it is
+    a `Scene` the world can show: colours (n,) integer palette indices, positions (n, 2) finite metres
+    inside the arena, an int target index; else a ValueError naming the reset option and the fix."""
+    fix = "build one with oneshot.world.reach.Scene(colours, positions, target), or sample_scene"
+    if not isinstance(scene, Scene):
+        raise ValueError(f"reset option 'scene' must be a oneshot.world.reach.Scene; got {type(scene).__name__}; {fix}")
+    colours, positions = np.asarray(scene.colours), np.asarray(scene.positions)
+    if colours.dtype.kind not in "iu":
+        raise ValueError(f"reset option 'scene': colours must be integer palette indices; got {colours.dtype} "
+                         f"{colours.tolist()}; pass np.array(colours, dtype=int)")
+    a = cfg.arena_half_width
+    if positions.dtype.kind not in "iuf" or not np.all(np.abs(positions) <= a):     # False for NaN too
+        raise ValueError(f"reset option 'scene': positions must be finite metres inside the arena [-{a}, {a}]^2; "
+                         f"got {positions.tolist()}; replace the NaN, inf or outside positions")
+    target = check_int("reset option 'scene': target", scene.target, "pass the index of the target object")
+    if colours.ndim != 1 or positions.shape != (len(colours), 2):
+        raise ValueError(f"scene needs colours (n,) and positions (n, 2); "
+                         f"got {colours.shape} and {positions.shape}")
+    if not 0 <= target < len(colours):
+        raise ValueError(f"scene target index {target} is out of range for {len(colours)} objects")
+    n = palette.n_colours(cfg.palette)
+    if colours.min() < 0 or colours.max() >= n:
+        raise ValueError(f"scene colours must be palette indices in [0, {n}); got {colours}")
+    return Scene(colours.copy(), positions.astype(np.result_type(positions, float)), target)
 
 
 def sample_positions(n, rng, cfg):
@@ -164,8 +203,7 @@ class ReachWorld:
         options = options or {}
         rng = np.random.default_rng(seed)
         if "scene" in options:
-            self.scene = options["scene"]
-            self._check_scene(self.scene)
+            self.scene = check_scene(options["scene"], self.config)
         else:
             colour = options.get("target_colour")
             if colour is None:
@@ -178,18 +216,6 @@ class ReachWorld:
         self.t = 0
         self.end_effector_history = []
         return self._observation(), self._info()
-
-    def _check_scene(self, scene):
-        cfg = self.config
-        colours, positions = np.asarray(scene.colours), np.asarray(scene.positions)
-        if colours.shape != (len(colours),) or positions.shape != (len(colours), 2):
-            raise ValueError(f"scene needs colours (n,) and positions (n, 2); "
-                             f"got {colours.shape} and {positions.shape}")
-        if not 0 <= scene.target < len(colours):
-            raise ValueError(f"scene target index {scene.target} is out of range for {len(colours)} objects")
-        n = palette.n_colours(cfg.palette)
-        if colours.min() < 0 or colours.max() >= n:
-            raise ValueError(f"scene colours must be palette indices in [0, {n}); got {colours}")
 
     # --- state ---------------------------------------------------------------------------------
     @property
@@ -236,7 +262,7 @@ class ReachWorld:
 
     # --- dynamics ------------------------------------------------------------------------------
     def step(self, action):
-        """Apply joint torques for one control step. action: (2,) N m (clipped to the bound).
+        """Apply joint torques for one control step. action: (2,) real, N m (clipped to the bound).
 
         Returns (obs, reward, terminated, truncated, info); truncated is True after T steps, and
         info["success"] then tells whether the episode met the success criterion.
@@ -245,7 +271,11 @@ class ReachWorld:
             raise RuntimeError("call reset() before step()")
         if self.t >= self.config.horizon:
             raise RuntimeError(f"the episode ended after {self.config.horizon} steps; call reset()")
-        action = np.asarray(action, dtype=float)
+        action = np.asarray(action)
+        if action.dtype.kind not in "iuf":       # a complex torque would lose its imaginary part unseen
+            raise ValueError(f"action must be (2,) real joint torques in N m; got {action.dtype} {action.tolist()}; "
+                             f"pass a float array (np.real(action) drops an imaginary part)")
+        action = action.astype(float, copy=False)
         if action.shape != (2,):
             raise ValueError(f"action must be (2,) joint torques in N m; got shape {action.shape}")
         if not np.all(np.isfinite(action)):
