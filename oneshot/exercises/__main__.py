@@ -116,7 +116,8 @@ def _grade(args):
     numbers = args.exercises or sorted(EXERCISES)
     for path, text in ((args.csv, gradebook.csv_text), (args.json, gradebook.json_text)):
         if path:
-            print(f"wrote {gradebook.write(path, text(graded, numbers))}")
+            gradebook.write(path, text(graded, numbers))
+            print(f"wrote {path}")
     return 0
 
 
@@ -148,8 +149,8 @@ def parser():
     many.add_argument("dir")
     many.add_argument("--exercises", type=exercise_list, help="the assigned exercises, e.g. 5,6 (default: all)")
     many.add_argument("--jobs", type=cli.positive_int, default=None, help="submissions graded at once (default: the cores)")
-    many.add_argument("--csv", type=gradebook.output_file, metavar="FILE", help="also write a gradebook CSV")
-    many.add_argument("--json", type=gradebook.output_file, metavar="FILE", help="also write the grades as JSON")
+    many.add_argument("--csv", type=cli.writable_file, metavar="FILE", help="also write a gradebook CSV")
+    many.add_argument("--json", type=cli.writable_file, metavar="FILE", help="also write the grades as JSON")
     return main
 
 
