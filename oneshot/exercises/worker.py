@@ -24,6 +24,7 @@ import warnings
 import numpy as np
 
 from oneshot.exercises import confine, poison, wire
+from oneshot.tools.host import die_with_parent
 
 BOOT = ("import sys; sys.path.insert(0, sys.argv[2]); sys.dont_write_bytecode = True; "
         "from oneshot.exercises.worker import main; main(sys.argv[1])")
@@ -52,7 +53,7 @@ def main(text):
     channel = os.dup(1)
     os.dup2(2, 1)                                    # print() goes to the log, never into the channel
     signal.signal(signal.SIGTERM, _end)
-    confine.die_with_parent(job["parent"], signal.SIGTERM)
+    die_with_parent(job["parent"], signal.SIGTERM)
     confine.become_subreaper()
     from oneshot.exercises import CHECKERS
     with warnings.catch_warnings(), np.errstate(all="ignore"):
@@ -82,7 +83,7 @@ def _work(job, channel, cases, supervisor):
     """The worker: confine, arm, load, run. Returns the exit status."""
     from oneshot.exercises import CHECKERS, EXERCISES, SOLUTIONS, checking
     import oneshot.exercises as package
-    confine.die_with_parent(supervisor)
+    die_with_parent(supervisor)
     os.chdir(job["workdir"])
     confine.limit(job["memory"], job["cpu"], job["processes"], uid=confine.NOBODY if os.geteuid() == 0 else None)
     answers = [f for n in EXERCISES for f in CHECKERS[n].package] + list(SOLUTIONS.values())
