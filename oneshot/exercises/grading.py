@@ -130,10 +130,11 @@ def grade_submission(path, numbers, limits=Limits(), hidden=()):
     return graded
 
 
-def grade(folder, numbers=None, limits=Limits(), jobs=None, out=print):
+def grade(folder, numbers=None, limits=Limits(), jobs=None, out=print, found=None):
     """Grade every submission in `folder` on exercises `numbers` (default: all): one line per submission
-    and exercise, then a total, printed in name order as they finish. Returns [Graded]."""
-    found, numbers = submissions(folder), sorted(numbers or EXERCISES)
+    and exercise, then a total, printed in name order as they finish. Returns [Graded]. `found`: the
+    submissions, if the caller has listed them already (`submissions(folder)`)."""
+    found, numbers = found or submissions(folder), sorted(numbers or EXERCISES)
     labels = [wire.clean(p.name + ("/" if p.is_dir() else ""), 120) for p in found]
     width, graded = max(map(len, labels)), []
     for number in numbers:
