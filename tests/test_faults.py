@@ -13,6 +13,7 @@ import pytest
 
 from oneshot import train
 from oneshot.training import checkpoint, config, run_folder
+from test_hostile import refused
 
 
 @pytest.fixture
@@ -20,13 +21,6 @@ def smoke(tiny_split_datasets):
     paths = tiny_split_datasets
     return dataclasses.replace(config.PROFILES["smoke"], train_data=paths["train"], validation_data=paths["validation"],
                                test_data=paths["test"], iterations=2, checkpoint_every=1)
-
-
-def refused(capsys, argv):
-    with pytest.raises(SystemExit) as stop:
-        train.main(argv)
-    assert stop.value.code == 2
-    return capsys.readouterr().err.strip().splitlines()
 
 
 def test_a_plain_kill_of_collect_is_one_line_and_ends_its_workers(tmp_path):
@@ -51,16 +45,16 @@ def test_a_plain_kill_of_collect_is_one_line_and_ends_its_workers(tmp_path):
 
 def test_a_run_folder_with_too_long_a_name_is_refused_before_any_folder_is_made(capsys, tmp_path):
     run = tmp_path / "/".join(["a"] * 20) / ("b" * 300)
-    lines = refused(capsys, ["--profile", "smoke", "--run", str(run)])
-    assert len(lines) == 1 and "argument --run" in lines[0] and "more than the 255 a name may have" in lines[0]
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(run)])       # one line, status 2
+    assert "argument --run" in line and "more than the 255 a name may have" in line
     assert not (tmp_path / "a").exists()
 
 
 def test_a_dataset_that_cannot_be_written_is_refused_before_collecting(capsys, tmp_path):
     (tmp_path / "file").write_text("")
-    lines = refused(capsys, ["--profile", "smoke", "--run", str(tmp_path / "run"),
-                             "--train-data", str(tmp_path / "file" / "t.npz")])
-    assert len(lines) == 1 and "argument --train-data: cannot write" in lines[0] and "is a file" in lines[0]
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"),
+                                           "--train-data", str(tmp_path / "file" / "t.npz")])
+    assert "argument --train-data: cannot write" in line and "is a file" in line
     assert not (tmp_path / "run").exists()
 
 

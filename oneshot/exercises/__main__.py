@@ -17,7 +17,6 @@ Exit status of `check`: 0 correct, 1 not yet (wrong, raised, timed out, crashed,
 import argparse
 import math
 import os
-import signal
 import sys
 
 from oneshot.exercises import EXERCISES, gradebook
@@ -99,29 +98,18 @@ def _grade(args):
         found = submissions(args.dir)
     except SubmissionError as e:
         return _bad(str(e))
-    available, jobs = cli.available_memory_bytes(), min(args.jobs or os.cpu_count() or 1, len(found))
-    need = jobs * (args.memory + _BASELINE_MB) << 20
-    if available is not None and need > available:
-        return _bad(f"{jobs} submissions at once (--jobs) x --memory {args.memory} MB (+{_BASELINE_MB} MB each for "
-                    f"Python) would take {cli.human_bytes(need)}, and {cli.human_bytes(available)} is available; "
-                    f"use fewer jobs or less memory")
+    jobs = min(args.jobs or os.cpu_count() or 1, len(found))
+    cli.check_memory(jobs * (args.memory + _BASELINE_MB) << 20,
+                     f"{jobs} submissions at once (--jobs) x --memory {args.memory} MB (+{_BASELINE_MB} MB each "
+                     f"for Python)", "use fewer jobs or less memory")
     _warn()
-    previous = signal.signal(signal.SIGTERM, _interrupt)       # a plain kill ends grading as Ctrl-C does
-    try:
-        graded = grade(args.dir, args.exercises, _limits(args), args.jobs)
-    except SubmissionError as e:
-        return _bad(str(e))
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    graded = grade(args.dir, args.exercises, _limits(args), args.jobs, found=found)    # Ctrl-C, SIGTERM: cli.run
     numbers = args.exercises or sorted(EXERCISES)
     for path, text in ((args.csv, gradebook.csv_text), (args.json, gradebook.json_text)):
         if path:
-            print(f"wrote {gradebook.write(path, text(graded, numbers))}")
+            gradebook.write(path, text(graded, numbers))
+            print(f"wrote {path}")
     return 0
-
-
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt
 
 
 def _bad(message):
@@ -148,8 +136,8 @@ def parser():
     many.add_argument("dir")
     many.add_argument("--exercises", type=exercise_list, help="the assigned exercises, e.g. 5,6 (default: all)")
     many.add_argument("--jobs", type=cli.positive_int, default=None, help="submissions graded at once (default: the cores)")
-    many.add_argument("--csv", type=gradebook.output_file, metavar="FILE", help="also write a gradebook CSV")
-    many.add_argument("--json", type=gradebook.output_file, metavar="FILE", help="also write the grades as JSON")
+    many.add_argument("--csv", type=cli.writable_file, metavar="FILE", help="also write a gradebook CSV")
+    many.add_argument("--json", type=cli.writable_file, metavar="FILE", help="also write the grades as JSON")
     return main
 
 

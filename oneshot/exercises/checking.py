@@ -240,15 +240,14 @@ def expectations(checker):
         return cases, [case.run(checker.expected) for case in cases]
 
 
-def judge(exercise, checker, outcome_of, cases=None, wants=None):
-    """The verdict on the outcomes `outcome_of(index)` of the student's function on `cases` (default:
-    the checker's): a Result with the first difference in words, naming the mistake that explains it."""
+def judge(exercise, checker, outcome_of, cases, wants=None):
+    """The verdict on the outcomes `outcome_of(index)` of the student's function on `cases` (the
+    checker's): a Result with the first difference in words, naming the mistake that explains it."""
     def verdict(passed, message, flagged=False):
         return Result(exercise.number, passed, message, exercise.title, flagged)
     name = exercise.name
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")
-        cases = checker.cases() if cases is None else cases
         for index, case in enumerate(cases):
             out = case.out or checker.out
             want = case.run(checker.expected) if wants is None else wants[index]

@@ -8,9 +8,9 @@
                      signals >= 6.12; less on older kernels, nothing where it is off)
     drop_privileges  run as `nobody` when the grader runs as root (root ignores RLIMIT_NPROC), with no
                      capabilities (under Landlock, owning root's files, so Python under /root imports)
-    die_with_parent, become_subreaper, kill_descendants   no process outlives the grading of its submission:
-                     a subreaper inherits whatever a submission forks, even in a session of its own,
-                     and kills it all at the end
+    become_subreaper, kill_descendants   no process outlives the grading of its submission: a
+                     subreaper inherits whatever a submission forks, even in a session of its own, and
+                     kills it all at the end (each process also ends with its parent: `host.die_with_parent`)
 
 Each is a no-op (returning False or 0) where the system does not offer it; `landlock_abi` says which
 Landlock version the kernel has, so the grader can warn about what is missing.
@@ -22,7 +22,7 @@ import signal
 import struct
 
 NOBODY = 65534
-_PR_SET_PDEATHSIG, _PR_SET_NO_NEW_PRIVS, _PR_SET_CHILD_SUBREAPER = 1, 38, 36
+_PR_SET_NO_NEW_PRIVS, _PR_SET_CHILD_SUBREAPER = 38, 36
 _PR_SET_KEEPCAPS, _PR_CAPBSET_DROP, _CAP_SETUID = 8, 24, 7
 _CREATE_RULESET, _ADD_RULE, _RESTRICT_SELF = 444, 445, 446        # the same on every Linux architecture
 _EXECUTE, _WRITE_FILE, _READ_FILE, _READ_DIR, _REFER, _TRUNCATE = 1, 2, 4, 8, 1 << 13, 1 << 14
@@ -153,14 +153,6 @@ def _capset(mask):
                                                    mask >> 32, mask >> 32, 0))
     if _libc().capset(header, data) != 0:
         raise OSError(ctypes.get_errno(), "capset failed")
-
-
-def die_with_parent(parent, sig=signal.SIGKILL):
-    """Get `sig` when the parent (pid `parent`) ends, however it ends (prctl PR_SET_PDEATHSIG); exit
-    at once if it has ended already."""
-    _libc().prctl(_PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
-    if os.getppid() != parent:
-        os._exit(1)
 
 
 def become_subreaper():

@@ -10,25 +10,11 @@ A text cell that a spreadsheet would run as a formula (starting with =, +, -, @)
 JSON: {"exercises": [5, 6], "students": [{"student", "submission", "points": {"5": 1, ...},
 "verdicts": {"5": "correct", ...}, "total", "max_score", "flagged", "load_error", "notes"}, ...]}.
 """
-import argparse
 import csv
 import io
 import json
-import os
-import tempfile
 
-from oneshot.tools import cli
-
-
-def output_file(text):
-    """An argparse type: a path a gradebook can be written to, through a symbolic link to its target:
-    a regular file or nothing yet, in a folder that takes new files."""
-    target = os.path.realpath(text) if text else text
-    if target and os.path.lexists(target) and not os.path.isfile(target):
-        kind = "a folder" if os.path.isdir(target) else "not a regular file (a device, FIFO or socket)"
-        raise argparse.ArgumentTypeError(f"{text!r} is {kind}; name a file")
-    cli.writable_file(target)
-    return target
+from oneshot.tools import files
 
 
 def _stem(label):
@@ -77,20 +63,7 @@ def json_text(graded, numbers):
 
 
 def write(path, text):
-    """Write `text` to `path` atomically (a temporary file in its folder, then os.replace), through a
-    symbolic link to its target; refuse a target that is not a regular file."""
-    target = output_file(path)
-    fd, temporary = tempfile.mkstemp(dir=os.path.dirname(target) or ".", prefix=f".{os.path.basename(target)}.")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(temporary, 0o666 & ~umask)
-        os.replace(temporary, target)
-    except BaseException:
-        os.unlink(temporary)
-        raise
-    return target
+    """Write `text` (UTF-8) to `path` atomically, through a symbolic link to its target (`files.atomic_write`:
+    a regular file or nothing yet; a folder, a device or a FIFO is refused)."""
+    with files.atomic_write(path) as f:
+        f.write(text.encode("utf-8"))

@@ -96,10 +96,14 @@ def verdict(number, outcomes):
     return "correct" if result.passed else f"{'flagged' if result.flagged else 'not yet'}: {words}"
 
 
+def _label(path):
+    """A submission's name as the grade shows it, on one line: "alice.py", "carol/" (a folder) (`wire.clean`)."""
+    return wire.clean(Path(path).name + ("/" if Path(path).is_dir() else ""), 120)
+
+
 def grade_submission(path, numbers, limits=Limits(), hidden=()):
     """Grade one submission on exercises `numbers`: a Graded."""
-    label = wire.clean(Path(path).name + ("/" if Path(path).is_dir() else ""), 120)
-    graded, pending = Graded(label, list(numbers)), list(numbers)
+    graded, pending = Graded(_label(path), list(numbers)), list(numbers)
     while pending and not stopping.is_set():
         try:
             messages, ending, why = run_sandbox(path, pending, limits, _valid, hidden)
@@ -130,12 +134,12 @@ def grade_submission(path, numbers, limits=Limits(), hidden=()):
     return graded
 
 
-def grade(folder, numbers=None, limits=Limits(), jobs=None, out=print):
+def grade(folder, numbers=None, limits=Limits(), jobs=None, out=print, found=None):
     """Grade every submission in `folder` on exercises `numbers` (default: all): one line per submission
-    and exercise, then a total, printed in name order as they finish. Returns [Graded]."""
-    found, numbers = submissions(folder), sorted(numbers or EXERCISES)
-    labels = [wire.clean(p.name + ("/" if p.is_dir() else ""), 120) for p in found]
-    width, graded = max(map(len, labels)), []
+    and exercise, then a total, printed in name order as they finish. Returns [Graded]. `found`: the
+    submissions, if the caller has listed them already (`submissions(folder)`)."""
+    found, numbers = found or submissions(folder), sorted(numbers or EXERCISES)
+    width, graded = max(len(_label(p)) for p in found), []
     for number in numbers:
         _expectations(number)
     stopping.clear()

@@ -19,11 +19,14 @@ import os
 import shutil
 import signal
 import sys
+import traceback
 import warnings
 
 import numpy as np
 
-from oneshot.exercises import confine, poison, wire
+from oneshot import exercises
+from oneshot.exercises import CHECKERS, EXERCISES, SOLUTIONS, checking, confine, poison, wire
+from oneshot.tools.host import die_with_parent
 
 BOOT = ("import sys; sys.path.insert(0, sys.argv[2]); sys.dont_write_bytecode = True; "
         "from oneshot.exercises.worker import main; main(sys.argv[1])")
@@ -52,9 +55,8 @@ def main(text):
     channel = os.dup(1)
     os.dup2(2, 1)                                    # print() goes to the log, never into the channel
     signal.signal(signal.SIGTERM, _end)
-    confine.die_with_parent(job["parent"], signal.SIGTERM)
+    die_with_parent(job["parent"], signal.SIGTERM)
     confine.become_subreaper()
-    from oneshot.exercises import CHECKERS
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore")
         cases = {n: CHECKERS[n].cases() for n in job["numbers"]}
@@ -65,7 +67,6 @@ def main(text):
         try:
             status = _work(job, channel, cases, os.getppid())
         except BaseException:                            # its last line is what the grader shows
-            import traceback
             traceback.print_exc()
         finally:
             os._exit(status)
@@ -80,14 +81,12 @@ def main(text):
 
 def _work(job, channel, cases, supervisor):
     """The worker: confine, arm, load, run. Returns the exit status."""
-    from oneshot.exercises import CHECKERS, EXERCISES, SOLUTIONS, checking
-    import oneshot.exercises as package
-    confine.die_with_parent(supervisor)
+    die_with_parent(supervisor)
     os.chdir(job["workdir"])
     confine.limit(job["memory"], job["cpu"], job["processes"], uid=confine.NOBODY if os.geteuid() == 0 else None)
     answers = [f for n in EXERCISES for f in CHECKERS[n].package] + list(SOLUTIONS.values())
     poison.arm(answers, boundary=checking.attempt.__code__)
-    package.check = lambda *args, **kwargs: None         # a notebook's check(5, ...) cells: grading is elsewhere
+    exercises.check = lambda *args, **kwargs: None       # a notebook's check(5, ...) cells: grading is elsewhere
     confined = confine.landlock([job["workdir"]], job["readable"], job["hidden"])
     confine.drop_privileges(keep_files=bool(confined))
     os.closerange(3, channel)
@@ -105,14 +104,14 @@ def _work(job, channel, cases, supervisor):
             wire.send(channel, {"event": "result", "exercise": n, "missing": True})
             continue
         room = wire.MAX_FRAME // (len(cases[n]) + 1)       # bytes each case's answer may take in the frame
-        outcomes = [_outcome(EXERCISES[n], case, poison.submission(function), checking, room) for case in cases[n]]
+        outcomes = [_outcome(EXERCISES[n], case, poison.submission(function), room) for case in cases[n]]
         wire.send(channel, {"event": "result", "exercise": n, "outcomes": outcomes})
     sys.stdout.flush()
     sys.stderr.flush()
     return 0
 
 
-def _outcome(exercise, case, function, checking, room):
+def _outcome(exercise, case, function, room):
     """One case's Outcome, as wire data; a tripwire the function hit counts even if it caught PackageUsed."""
     poison.tripped.clear()
     with warnings.catch_warnings(), np.errstate(all="ignore"):
@@ -154,7 +153,8 @@ def _load(job):
                 functions.setdefault(name, value)
         errors = vars(module).get("__notebook_errors__")
         if isinstance(errors, list):
-            notes += [f"cell {n} raised {_words(e)}" for n, e in errors[:20] if isinstance(e, BaseException)]
+            notes += [f"cell {n} raised {checking.error_words(e)}" for n, e in errors[:20]
+                      if isinstance(e, BaseException)]
     return functions, notes
 
 
@@ -162,9 +162,5 @@ class _LoadError(Exception):
     """A .py file of the submission that failed as it loaded: "could not load bob.py: SyntaxError: ..."."""
 
     def __init__(self, file, error):
-        super().__init__(f"could not load {file}: {_words(error)}")
+        super().__init__(f"could not load {file}: {checking.error_words(error)}")
 
-
-def _words(error):
-    from oneshot.exercises.checking import error_words
-    return error_words(error)

@@ -87,8 +87,6 @@ def writable_file(path):
     disk, so an unwritable output fails before the work, not after it."""
     if not path:
         raise argparse.ArgumentTypeError("expected a file path; got ''")
-    if os.path.isdir(path):
-        raise argparse.ArgumentTypeError(f"{path!r} is a folder; name a file (in it, if you like)")
     try:
         real = files.target(path)                        # what atomic_write will write
     except files.RefusedPath as e:

@@ -37,12 +37,13 @@ def tune_malloc():
 PR_SET_PDEATHSIG = 1                    # linux/prctl.h
 
 
-def die_with_parent(parent):
+def die_with_parent(parent, sig=signal.SIGKILL):
     """End this process when its parent (pid `parent`) dies, even by kill -9, instead of living on,
-    reparented, blocked on a pipe: a worker process calls it first. On Linux the kernel sends SIGKILL
-    (prctl PR_SET_PDEATHSIG); elsewhere a daemon thread checks the parent's pid every second."""
+    reparented, blocked on a pipe: a worker process calls it first. On Linux the kernel sends `sig`
+    (prctl PR_SET_PDEATHSIG; SIGTERM lets a handler clean up first); elsewhere a daemon thread checks
+    the parent's pid every second and sends it. If the parent has died already, exit at once."""
     try:
-        if ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL) == 0:
+        if ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(sig)) == 0:
             if os.getppid() != parent:   # the parent died before prctl took effect
                 os._exit(1)
             return
@@ -52,7 +53,7 @@ def die_with_parent(parent):
     def watch():
         while os.getppid() == parent:
             time.sleep(1.0)
-        os._exit(1)
+        os.kill(os.getpid(), sig)
     threading.Thread(target=watch, daemon=True).start()
 
 
