@@ -111,6 +111,8 @@ def main(argv=None):
     if args.json:
         written = {k: dict(v, per_colour={str(c): x for c, x in v["per_colour"].items()})
                    if "per_colour" in v else v for k, v in results.items()}
+        written["policy"] = {"checkpoint": args.checkpoint, "training_seed": cfg.seed, "method": cfg.method,
+                             "trials_per_colour": args.trials, "eval_seed": args.seed}   # what pools (seeds)
         with files.atomic_write(args.json) as f:             # never half a file
             f.write(json.dumps(written, indent=1).encode())
     return results

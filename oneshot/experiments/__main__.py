@@ -9,6 +9,7 @@ run scored on the profile's split (`oneshot.experiments.fig2`):
     python -m oneshot.experiments fig2 --profile paper --scheduler tcp://host:8786
     python -m oneshot.experiments fig2 --profile quick --compare results/fig2_quick   # check a reproduction
     python -m oneshot.experiments summarise results/fig2_paper            # summary and figure from runs.csv
+    python -m oneshot.experiments seeds results/default_seeds/seed*_test.json   # one recipe over its seeds
 
 It writes `results/fig2_<profile>/` where it runs (or `--out`): runs.csv (one row per finished run),
 summary.json (per line and size: the mean over seeds and its 95% interval over seeds and scored
@@ -34,9 +35,9 @@ import sys
 from oneshot.experiments.fig2 import LABELS, LINES, PROFILES, ensure_data, load_results, plan, run_context, run_one
 from oneshot import methods
 from oneshot.experiments.rows import read_rows
-from oneshot.experiments.summary import PLOTS, compare, plot, summarise, write_summary
+from oneshot.experiments.summary import PLOTS, compare, plot, pool_evaluations, summarise, write_summary
 from oneshot.experiments.sweep import SweepLocked, sweep
-from oneshot.tools import cli
+from oneshot.tools import cli, files
 
 # Optional extras: the sweep runs without them and says which one a flag or the plot needs.
 try:
@@ -104,9 +105,17 @@ def main(argv=None):
     r = commands.add_parser("summarise", help="the summary and figure of a results folder from its runs.csv, "
                                               "with today's intervals (no run is done)")
     r.add_argument("results", help="a results folder holding runs.csv and summary.json, e.g. results/fig2_paper")
+    s = commands.add_parser("seeds", help="one recipe's policies, trained with different seeds and scored by "
+                                          "evaluate --json on one split: their mean with its interval over seeds "
+                                          "and colours")
+    s.add_argument("evaluations", nargs="+", metavar="JSON",
+                   help="`python -m oneshot.evaluate CKPT --split S --json FILE` results, one per training seed")
+    s.add_argument("--out", type=cli.writable_file, default=None, help="also write the summary here (JSON)")
     args = p.parse_args(argv)
     if args.experiment == "summarise":
         return _summarise(args.results, argv)
+    if args.experiment == "seeds":
+        return _seeds(args.evaluations, args.out, argv)
     if args.local_cluster is not None and args.local_cluster < 1:
         f.error(f"--local-cluster must be >= 1; got {args.local_cluster}")
     if (args.scheduler or args.local_cluster) and distributed is None:
@@ -199,6 +208,29 @@ def _summarise(folder, argv):
         name = (before.get("config") or {}).get("name", "")
         plot(summary, os.path.join(folder, "fig2.png"), _labels(),
              title=f"Figure 2 ({name} profile, {len({r['seed'] for r in rows})} seeds)")
+    return 0
+
+
+def _seeds(paths, out, argv):
+    """Print (and with --out write) the pooled evaluate results of one recipe's seeds (`pool_evaluations`)."""
+    results = []
+    for path in paths:
+        with files.open_read(path, "r") as f:
+            try:
+                results.append(files.loads_json(f.read()))
+            except ValueError as e:
+                raise ValueError(f"{path} is not JSON ({e}); name evaluate's --json files") from None
+    pooled = pool_evaluations(results, paths)
+    pct = lambda x: f"{100 * x:.1f}%"
+    for p in pooled["policies"]:
+        print(f"training seed {p['training_seed']}: {pct(p['rate'])} ({p['successes']}/{p['trials']})  {p['file']}")
+    print(f"{pooled['method']}, {pooled['split']} split ({pooled['colours']} colours x {pooled['trials_per_colour']} "
+          f"trials), mean over {len(paths)} seeds: {pct(pooled['mean_rate'])} [{pct(pooled['ci_low'])}, "
+          f"{pct(pooled['ci_high'])}] ({pooled['successes']}/{pooled['trials']}; seeds from {pct(pooled['min_rate'])} "
+          f"to {pct(pooled['max_rate'])}; {pooled['interval']})")
+    if out:
+        write_summary(dict(pooled, command="python -m oneshot.experiments " + shlex.join(argv)), out)
+        print(f"summary: {out}")
     return 0
 
 

@@ -2,6 +2,7 @@
 
     summary = summarise(rows, config, command)        # what summary.json holds
     plot(summary, "fig2.png", labels)                 # pip install ".[plots]"
+    pooled = pool_evaluations(results, names)         # one recipe's seeds, from evaluate's --json files
 """
 import dataclasses
 import json
@@ -81,6 +82,58 @@ def compare(mine, theirs):
         out.append({"method": key[0], "size": key[1], "mine": stats.mean_rate(*ours), "theirs": stats.mean_rate(*others),
                     "difference": d, "ci_low": lo, "ci_high": hi, "agree": lo <= 0 <= hi})
     return out
+
+
+SCORED = ("validation", "test")        # the splits an evaluate result scores (its "train" is a contrast)
+
+
+def pool_evaluations(results, names):
+    """The mean over training seeds of one recipe's policies, each scored by `python -m oneshot.evaluate
+    CKPT --split S --json FILE` on the same split, colours and scenes, with its 95% interval over seeds
+    and colours (`stats.interval`): how the README reports a training profile, not one lucky run.
+
+    results: the JSON of each file; names: the files, for messages (ValueError names what differs).
+    -> {"split", "colours", "trials_per_colour", "eval_seed", "method", "policies": [{"file", "checkpoint",
+    "training_seed", "successes", "trials", "rate"}], "successes", "trials", "mean_rate", "ci_low",
+    "ci_high", "min_rate", "max_rate", "interval": stats.METHOD}.
+    """
+    rows = []
+    for result, name in zip(results, names):
+        scored = [s for s in SCORED if s in result] if isinstance(result, dict) else []
+        try:
+            policy, r = result["policy"], result[scored[0]]
+            rows.append({"file": name, "split": scored[0], "successes": int(r["successes"]), "trials": int(r["trials"]),
+                         **{k: policy[k] for k in ("checkpoint", "training_seed", "method", "trials_per_colour",
+                                                   "eval_seed")},
+                         "colours": sorted(r["per_colour"], key=int),
+                         "per_colour": {c: round(x * policy["trials_per_colour"]) for c, x in r["per_colour"].items()}})
+        except (IndexError, KeyError, TypeError, ValueError):
+            raise ValueError(f"{name} is not one split's result of `python -m oneshot.evaluate ... --json` (this "
+                             f"version's: it records its policy); run that command again") from None
+        if len(scored) != 1:
+            raise ValueError(f"{name} scores {' and '.join(scored)}: pool results of one split")
+    for key in ("split", "colours", "trials_per_colour", "eval_seed", "method"):
+        values = {str(row[key]) for row in rows}
+        if len(values) > 1:
+            raise ValueError(f"these results differ in {key} ({', '.join(sorted(values))}): pool one method's "
+                             f"policies scored on the same split, colours and scenes")
+    seeds = [row["training_seed"] for row in rows]
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"training seed(s) repeated among {len(rows)} results ({sorted(seeds)}): one result per "
+                         f"trained policy")
+    rows.sort(key=lambda row: row["training_seed"])
+    successes, trials = stats.counts([{"successes": row["successes"], "trials": row["trials"],
+                                       "notes": json.dumps({"per_colour": row["per_colour"]})} for row in rows])
+    mean, lo, hi = stats.interval(successes, trials)
+    rates = [row["successes"] / row["trials"] for row in rows]
+    first = rows[0]
+    return {"split": first["split"], "colours": len(first["colours"]), "trials_per_colour": first["trials_per_colour"],
+            "eval_seed": first["eval_seed"], "method": first["method"],
+            "policies": [{k: row[k] for k in ("file", "checkpoint", "training_seed", "successes", "trials")}
+                         | {"rate": row["successes"] / row["trials"]} for row in rows],
+            "successes": sum(row["successes"] for row in rows), "trials": sum(row["trials"] for row in rows),
+            "mean_rate": mean, "ci_low": lo, "ci_high": hi, "min_rate": min(rates), "max_rate": max(rates),
+            "interval": stats.METHOD}
 
 
 def write_summary(summary, path):
