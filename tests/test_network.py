@@ -294,6 +294,33 @@ def test_feature_points_second_order_gradients():
     check_grads(lambda p: predict(p, images, states), modes=["rev"], order=2)(params)
 
 
+@pytest.mark.parametrize("per_task", [False, True], ids=["shared offset", "offset per task"])
+def test_layer_norm_primitives_equal_the_plain_version_to_second_order(per_task):
+    """norm.layer_norm (primitives with hand-written VJPs) against norm.layer_norm_reference (autograd.numpy):
+    values, gradients, and the gradient of a gradient step's loss (MAML's second order), in float64."""
+    from oneshot.policy.norm import layer_norm, layer_norm_reference
+    rng = np.random.default_rng(4)
+    x = rng.normal(1.0, 3.0, (2, 3, 4, 4, 5))
+    offset = rng.normal(size=(2, 5) if per_task else (5,))
+    w = rng.normal(size=x.shape)
+
+    def loss(norm):          # a smooth, non-linear loss of the normalised map, as the next layers are
+        return lambda x, offset: anp.sum(anp.tanh(norm(x, offset)) * w)
+
+    def after_a_step(norm):  # the loss after one gradient step on x and offset: second order
+        def f(x, offset):
+            gx, go = grad(loss(norm), argnum=(0, 1))(x, offset)
+            return loss(norm)(x - 0.1 * gx, offset - 0.1 * go)
+        return f
+
+    np.testing.assert_allclose(layer_norm(x, offset), layer_norm_reference(x, offset), rtol=1e-12, atol=1e-12)
+    for f in (loss, after_a_step):
+        for argnum in (0, 1):
+            np.testing.assert_allclose(grad(f(layer_norm), argnum)(x, offset),
+                                       grad(f(layer_norm_reference), argnum)(x, offset), rtol=1e-9, atol=1e-11)
+    check_grads(lambda x: anp.sum(anp.tanh(layer_norm(x, offset)) * w), modes=["rev"], order=3)(x)
+
+
 def test_layer_norm_second_order_gradients_and_what_it_normalises():
     """Layer norm (MIL's released code, offset only) passes the second-order check, on the plain path and
     the fast one; each frame's map, before the offset, has mean 0 and variance 1 over H, W and C."""

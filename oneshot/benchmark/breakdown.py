@@ -4,14 +4,14 @@ and what the exchanges between processes and the evaluation rollouts of a Figure
 The training process's part of a meta-gradient (its block of frames of every task, `oneshot.maml.shards`)
 is computed in this process alone with one BLAS thread, as during training, `iterations` times as it is
 (median wall time) and, alternately with those, under Python's cProfile, which gives the time spent in
-each function of the network (`oneshot.policy.conv`, `.affine`, `.layers`, `oneshot.maml.inner`):
+each function of the network (`oneshot.policy.conv`, `.affine`, `.layers`, `.norm`, `oneshot.maml.inner`):
 
     conv_products          the convolutions' matrix products (`conv`) and the dense layers' (`matmul`)
     transposed_products    their transposes: the gradients with respect to activations and weights
                            (`conv_dx`, `conv_dw`, `matmul_dx`, `matmul_dw`)
     im2col_col2im          gathering patches into rows and scattering them back (`im2col`, `col2im`, the
                            blocks of patches of `conv`)
-    other_layer_primitives bias, ReLU and its mask, concatenation, eq. (1)'s step
+    other_layer_primitives bias, ReLU and its mask, concatenation, layer norm, eq. (1)'s step
     autograd_python        the rest of the wall time: autograd's tape (boxing, nodes, the backward pass's
                            order and sums of gradients) and NumPy's small operations (loss, reshapes,
                            feature points)
@@ -30,7 +30,7 @@ import numpy as np
 from oneshot.benchmark.maml import bench_setup, synthetic_demos
 from oneshot.experiments.fig2 import PROFILES
 from oneshot.maml import imitation, inner, shards
-from oneshot.policy import affine, conv, layers, network
+from oneshot.policy import affine, conv, layers, network, norm
 from oneshot.tools import host
 from oneshot.world.reach import ReachWorld, WorldConfig
 
@@ -53,7 +53,7 @@ def _code_key(f):
 def _function_groups():
     """cProfile's key of every function timed -> its group (`GROUPS`, else "other_layer_primitives")."""
     keys = {_code_key(getattr(module, name)): group for group, members in GROUPS.items() for module, name in members}
-    for module in (affine, conv, layers, inner):
+    for module in (affine, conv, layers, norm, inner):
         for f in vars(module).values():
             if getattr(f, "_is_autograd_primitive", False) and _code_key(f) not in keys:
                 keys[_code_key(f)] = "other_layer_primitives"

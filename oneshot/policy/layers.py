@@ -4,6 +4,7 @@ builds the policy from, in one place.
     oneshot.policy.conv      convolution as im2col + matrix product: conv2d, im2col, col2im, and a
                              layer's convolution, transpose and weight gradient (conv, conv_dx, conv_dw)
     oneshot.policy.affine    the dense layers' matrix products and bias adds, with their transposes
+    oneshot.policy.norm      layer normalisation (the released code's, offset only)
     here                     ReLU, concatenation, the spatial soft-argmax (feature points)
 
 Each is an autograd primitive whose vector-Jacobian product (VJP) is written with primitives of the
@@ -23,14 +24,12 @@ from autograd.tracer import getval
 import autograd.numpy as anp
 from oneshot.policy.affine import add_bias, bias_grad, broadcast_bias, matmul, matmul_dw, matmul_dx
 from oneshot.policy.conv import col2im, conv, conv2d, conv_dw, conv_dx, conv_output_size, im2col
+from oneshot.policy.norm import LN_EPSILON, layer_norm
 
 __all__ = ["add_bias", "bias_grad", "broadcast_bias", "matmul", "matmul_dw", "matmul_dx",          # affine
            "col2im", "conv", "conv2d", "conv_dw", "conv_dx", "conv_output_size", "im2col",          # conv
            "relu", "mask", "concat_last", "slice_last", "pad_last", "spatial_soft_argmax", "per_frame",
-           "layer_norm", "LN_EPSILON"]
-
-
-LN_EPSILON = 1e-6   # layer norm's variance floor (float32: an all-equal map is not divided by zero)
+           "layer_norm", "LN_EPSILON"]                                                              # norm
 
 
 @primitive
@@ -104,16 +103,3 @@ def spatial_soft_argmax(x, temperature):
 def per_frame(v):
     """(n,) -> (n,) or per-task (B, n) -> (B, 1, n), ready to broadcast against (..., T, n)."""
     return v if v.ndim == 1 else anp.expand_dims(v, -2)
-
-
-def layer_norm(x, offset):
-    """Layer normalisation of each frame's feature map, offset only (MIL's released code: `norm='layer_norm'`,
-    center=True, scale=False, between each convolution and its ReLU): x (..., H, W, C) -> the same shape,
-    (x - mean) / sqrt(var + LN_EPSILON) + offset, mean and var over the frame's H, W and C."""
-    n = x.shape[-3] * x.shape[-2] * x.shape[-1]                 # sums over n, not anp.mean: mean's VJP
-    mean = anp.sum(x, axis=(-3, -2, -1), keepdims=True) / n     # divides by a float64 count (float32 stays)
-    centred = x - mean
-    var = anp.sum(centred * centred, axis=(-3, -2, -1), keepdims=True) / n
-    if anp.ndim(offset) > 1:                                   # per task (B, C) against (B, T, H, W, C)
-        offset = anp.reshape(offset, (anp.shape(offset)[0], 1, 1, 1, anp.shape(offset)[-1]))
-    return centred / anp.sqrt(var + LN_EPSILON) + offset
