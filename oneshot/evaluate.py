@@ -111,8 +111,12 @@ def main(argv=None):
     if args.json:
         written = {k: dict(v, per_colour={str(c): x for c, x in v["per_colour"].items()})
                    if "per_colour" in v else v for k, v in results.items()}
+        # what `python -m oneshot.experiments seeds` pools: one recipe (the config but its seed and data
+        # paths, with this command's --alpha and --inner-steps, and --raw), scored on one dataset and scenes
+        recipe = {k: v for k, v in dataclasses.asdict(cfg).items() if k != "seed" and not k.endswith("_data")}
         written["policy"] = {"checkpoint": args.checkpoint, "training_seed": cfg.seed, "method": cfg.method,
-                             "trials_per_colour": args.trials, "eval_seed": args.seed}   # what pools (seeds)
+                             "recipe": dict(recipe, raw=args.raw), "dataset": run_data.spec(cfg, args.split)[0],
+                             "trials_per_colour": args.trials, "eval_seed": args.seed}
         with files.atomic_write(args.json) as f:             # never half a file
             f.write(json.dumps(written, indent=1).encode())
     return results

@@ -16,6 +16,7 @@ from autograd.core import primitive_vjps
 from autograd.test_util import check_grads
 
 from helpers import naive_conv2d, squared_error
+from oneshot.policy.norm import layer_norm, layer_norm_reference
 from oneshot.policy.network import (STRIDE, NetworkConfig, conv2d_reference, count_flops, forward, forward_reference,
                              images_to_float, init_params, param_shapes, predict, predict_tasks)
 
@@ -298,7 +299,6 @@ def test_feature_points_second_order_gradients():
 def test_layer_norm_primitives_equal_the_plain_version_to_second_order(per_task):
     """norm.layer_norm (primitives with hand-written VJPs) against norm.layer_norm_reference (autograd.numpy):
     values, gradients, and the gradient of a gradient step's loss (MAML's second order), in float64."""
-    from oneshot.policy.norm import layer_norm, layer_norm_reference
     rng = np.random.default_rng(4)
     x = rng.normal(1.0, 3.0, (2, 3, 4, 4, 5))
     offset = rng.normal(size=(2, 5) if per_task else (5,))
@@ -329,7 +329,6 @@ def test_layer_norm_second_order_gradients_and_what_it_normalises():
     assert {k for k in params if k.startswith("ln")} == {"ln0_offset", "ln1_offset"}
     check_grads(squared_error(forward_reference, images, states, actions), modes=["rev"], order=2)(params)
     check_grads(squared_error(predict, images, states, actions), modes=["rev"], order=2)(params)
-    from oneshot.policy.layers import layer_norm
     x = np.random.default_rng(3).normal(2.0, 5.0, (4, 3, 5, 5, 6))
     y = layer_norm(x, np.zeros(6))
     np.testing.assert_allclose(y.mean(axis=(-3, -2, -1)), 0, atol=1e-12)

@@ -29,65 +29,107 @@ def two_seeds(tiny_split_datasets, tmp_path_factory):
     return scored
 
 
-def _write(path, split, seed, per_colour, trials_per_colour, **policy):
-    """An evaluate --json result by hand: per_colour {colour: successes}."""
-    successes = sum(per_colour.values())
-    trials = trials_per_colour * len(per_colour)
+RECIPE = {"method": "mil", "alpha": 0.3, "raw": False}
+
+
+def _write(path, split="test", seed=0, per_colour=None, trials_per_colour=4, order=None, result=None, **policy):
+    """An evaluate --json result by hand: per_colour {colour: successes}, written in `order` of colours
+    (default sorted); `result` and `policy` override fields of the split's result and of the policy."""
+    per_colour = {0: 1, 1: 1} if per_colour is None else per_colour
+    successes, trials = sum(per_colour.values()), trials_per_colour * len(per_colour)
+    rates = {str(c): per_colour[c] / trials_per_colour for c in (order or sorted(per_colour))}
     path.write_text(json.dumps({split: {"successes": successes, "trials": trials, "rate": successes / trials,
-                                        "per_colour": {str(c): s / trials_per_colour for c, s in per_colour.items()}},
+                                        "per_colour": rates, **(result or {})},
                                 "policy": {"checkpoint": f"runs/seed{seed}/checkpoint.npz", "training_seed": seed,
-                                           "method": "mil", "trials_per_colour": trials_per_colour, "eval_seed": 0,
-                                           **policy}}))
+                                           "method": "mil", "recipe": RECIPE, "dataset": f"data/{split}.npz",
+                                           "trials_per_colour": trials_per_colour, "eval_seed": 0, **policy}}))
     return str(path)
 
 
-def test_seeds_pools_evaluates_own_results_with_the_seed_and_colour_interval(two_seeds, tmp_path, capsys):
+def test_seeds_pools_evaluates_own_results(two_seeds, tmp_path, capsys):
     out = tmp_path / "summary.json"
     assert command.main(["seeds", *(path for path, _ in two_seeds), "--out", str(out)]) == 0
     pooled = json.loads(out.read_text())
     tests = [results["test"] for _, results in two_seeds]
     assert [p["training_seed"] for p in pooled["policies"]] == [0, 1]
-    assert pooled["split"] == "test" and pooled["trials_per_colour"] == 3
+    assert pooled["split"] == "test" and pooled["trials_per_colour"] == 3 and pooled["colours"] == 2
     assert pooled["successes"] == sum(r["successes"] for r in tests) and pooled["trials"] == sum(r["trials"] for r in tests)
-    # the interval is stats.interval of the (seeds, colours) counts evaluate measured
-    colours = sorted(tests[0]["per_colour"])
-    successes = np.array([[round(3 * r["per_colour"][c]) for c in colours] for r in tests])
-    mean, lo, hi = stats.interval(successes, np.full_like(successes, 3))
-    assert (pooled["mean_rate"], pooled["ci_low"], pooled["ci_high"]) == pytest.approx((mean, lo, hi))
-    assert mean == pytest.approx(np.mean([r["rate"] for r in tests]))
+    assert pooled["mean_rate"] == pytest.approx(np.mean([r["rate"] for r in tests]))
     assert "mean over 2 seeds" in capsys.readouterr().out
     assert pooled["command"].startswith("python -m oneshot.experiments seeds ")
 
 
-def test_seeds_prints_each_policy_then_the_mean_over_seeds(tmp_path, capsys):
-    # seed 0: 4/4 on colour 0 and 0/4 on colour 1 (50%); seed 1: 1/4 and 1/4 (25%): mean 37.5%
-    a = _write(tmp_path / "a.json", "test", 0, {0: 4, 1: 0}, 4)
-    b = _write(tmp_path / "b.json", "test", 1, {0: 1, 1: 1}, 4)
-    assert command.main(["seeds", b, a]) == 0
+def test_seeds_interval_is_the_seed_and_colour_bootstrap_of_the_counts(tmp_path, capsys):
+    # seed 0: 4, 0 and 2 of 4 on colours 0, 1, 2 (50%); seed 1: 3, 1 and 0 (33.3%), its colours listed in
+    # another order: the bootstrap must pair colour c of one seed with colour c of the other
+    a = _write(tmp_path / "a.json", seed=0, per_colour={0: 4, 1: 0, 2: 2})
+    b = _write(tmp_path / "b.json", seed=1, per_colour={0: 3, 1: 1, 2: 0}, order=[2, 0, 1])
+    out = tmp_path / "s.json"
+    assert command.main(["seeds", b, a, "--out", str(out)]) == 0
+    pooled = json.loads(out.read_text())
+    mean, lo, hi = stats.interval(np.array([[4, 0, 2], [3, 1, 0]]), np.full((2, 3), 4))
+    assert (pooled["mean_rate"], pooled["ci_low"], pooled["ci_high"]) == pytest.approx((mean, lo, hi))
+    assert mean == pytest.approx((6 / 12 + 4 / 12) / 2)
+    misread = stats.interval(np.array([[4, 0, 2], [0, 3, 1]]), np.full((2, 3), 4))   # b's colours in file order
+    assert misread[1:] != pytest.approx((lo, hi))
     printed = capsys.readouterr().out.splitlines()
-    assert printed[0].startswith("training seed 0: 50.0% (4/8)") and printed[1].startswith("training seed 1: 25.0% (2/8)")
-    assert "mean over 2 seeds: 37.5% [" in printed[2] and "seeds from 25.0% to 50.0%" in printed[2]
+    assert printed[0].startswith("training seed 0: 50.0% (6/12)") and printed[1].startswith("training seed 1: 33.3% (4/12)")
+    assert "mean over 2 seeds: 41.7% [" in printed[2] and "seeds from 33.3% to 50.0%" in printed[2]
 
 
 @pytest.mark.parametrize("second, why", [
-    (dict(split="validation"), "differ in split (test, validation)"),
+    (dict(split="validation"), "differ in split"),
     (dict(seed=0), "training seed(s) repeated"),
     (dict(trials_per_colour=2), "differ in trials_per_colour"),
     (dict(per_colour={0: 1, 2: 1}), "differ in colours"),
     (dict(eval_seed=1), "differ in eval_seed"),
+    (dict(method="lstm"), "differ in method"),
+    (dict(recipe=dict(RECIPE, alpha=0.1)), "differ in recipe"),
+    (dict(dataset="data/other.npz"), "differ in dataset"),
 ])
 def test_seeds_refuses_results_that_do_not_pool(tmp_path, capsys, second, why):
-    a = _write(tmp_path / "a.json", "test", 0, {0: 1, 1: 1}, 4)
-    args = dict(split="test", seed=1, per_colour={0: 1, 1: 1}, trials_per_colour=4) | second
-    b = _write(tmp_path / "b.json", args.pop("split"), args.pop("seed"), args.pop("per_colour"),
-               args.pop("trials_per_colour"), **args)
+    a = _write(tmp_path / "a.json", seed=0)
+    b = _write(tmp_path / "b.json", **{"seed": 1, **second})
     line, _ = refused(capsys, command.main, ["seeds", a, b])
     assert why in line
 
 
-@pytest.mark.parametrize("text", ['[1, 2]', '{"test": {"successes": 1}}', 'not json', '{"policy": {}}'])
-def test_seeds_refuses_what_evaluate_did_not_write_in_one_line(tmp_path, capsys, text):
-    a = _write(tmp_path / "a.json", "test", 0, {0: 1, 1: 1}, 4)
+@pytest.mark.parametrize("change", [
+    dict(result={"per_colour": {"0": "Infinity"}}), dict(result={"successes": 1e400}),
+    dict(result={"per_colour": ["0", "1"]}), dict(result={"per_colour": {}}), dict(result={"per_colour": {"x": 0.5}}),
+    dict(training_seed=[2]), dict(training_seed=None), dict(training_seed="2"), dict(training_seed=True),
+    dict(result={"per_colour": {"0": 0.3, "1": 0.2}}),       # not whole trials of 4
+    dict(result={"per_colour": {"0": 1.5, "1": 0.25}}),      # above 1
+    dict(result={"per_colour": {"0": float("nan"), "1": 0.25}}),
+])
+def test_seeds_refuses_what_evaluate_did_not_write_in_one_line(tmp_path, capsys, change):
+    a = _write(tmp_path / "a.json", seed=0)
+    b = _write(tmp_path / "b.json", **{"seed": 1, **change})
+    line, _ = refused(capsys, command.main, ["seeds", a, b])
+    assert "b.json is not one split's result" in line
+
+
+@pytest.mark.parametrize("text", ['[1, 2]', '{"test": {"successes": 1}}', 'not json', '{"policy": {}}', ''])
+def test_seeds_refuses_files_that_are_not_evaluate_results(tmp_path, capsys, text):
+    a = _write(tmp_path / "a.json", seed=0)
     (tmp_path / "b.json").write_text(text)
     line, _ = refused(capsys, command.main, ["seeds", a, str(tmp_path / "b.json")])
     assert "b.json is not" in line
+
+
+@pytest.mark.parametrize("result, why", [({"successes": 8}, "disagree with its totals (2/8)"),
+                                         ({"trials": 9}, "disagree with its totals (2/9)")])
+def test_seeds_refuses_counts_that_disagree_with_their_totals(tmp_path, capsys, result, why):
+    a = _write(tmp_path / "a.json", seed=0)
+    b = _write(tmp_path / "b.json", seed=1, result=result)
+    line, _ = refused(capsys, command.main, ["seeds", a, b])
+    assert "b.json: its per-colour rates" in line and why.replace("(2/8)", "(8/8)") in line
+
+
+def test_seeds_needs_two_results_and_keeps_its_inputs(tmp_path, capsys):
+    a, b = _write(tmp_path / "a.json", seed=0), _write(tmp_path / "b.json", seed=1)
+    line, _ = refused(capsys, command.main, ["seeds", a])
+    assert "needs the results of two or more training seeds" in line
+    before = (tmp_path / "b.json").read_text()
+    line, _ = refused(capsys, command.main, ["seeds", a, b, "--out", b])
+    assert "is one of the results to pool" in line and (tmp_path / "b.json").read_text() == before

@@ -7,6 +7,8 @@
 import dataclasses
 import json
 
+import numpy as np
+
 from oneshot.tools.files import atomic_write
 from oneshot.experiments import stats
 
@@ -85,50 +87,90 @@ def compare(mine, theirs):
 
 
 SCORED = ("validation", "test")        # the splits an evaluate result scores (its "train" is a contrast)
+POOLED = ("split", "dataset", "colours", "trials_per_colour", "eval_seed", "method", "recipe")  # must agree
+
+
+def _count(value, low, high):
+    """value as an int in [low, high] (not a bool, not a float), else ValueError."""
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise ValueError(value)
+    return value
+
+
+def _evaluation(result, name):
+    """One evaluate --json result as a row: its policy, split and per-colour success counts, every count
+    checked against its totals. ValueError names the file and what is wrong."""
+    scored = [s for s in SCORED if s in result] if isinstance(result, dict) else []
+    if len(scored) > 1:
+        raise ValueError(f"{name} scores {' and '.join(scored)}: pool results of one split")
+    try:
+        policy, r = result["policy"], result[scored[0]]
+        per_trial = _count(policy["trials_per_colour"], 1, float("inf"))
+        rates = r["per_colour"]
+        if not isinstance(rates, dict) or not rates:
+            raise ValueError(rates)
+        colours = sorted(rates, key=int)
+        counts = {}
+        for c in colours:
+            won = float(rates[c]) * per_trial
+            if not 0 <= won <= per_trial or abs(won - round(won)) > 1e-6:
+                raise ValueError(c)
+            counts[c] = round(won)
+        row = {"file": name, "split": scored[0], "colours": colours, "per_colour": counts,
+               "successes": _count(r["successes"], 0, float("inf")), "trials": _count(r["trials"], 1, float("inf")),
+               "checkpoint": str(policy["checkpoint"]), "training_seed": _count(policy["training_seed"], 0, float("inf")),
+               "trials_per_colour": per_trial, "eval_seed": _count(policy["eval_seed"], 0, float("inf")),
+               "method": str(policy["method"]), "dataset": str(policy["dataset"]),
+               "recipe": json.dumps(policy["recipe"], sort_keys=True)}
+    except (AttributeError, IndexError, KeyError, OverflowError, TypeError, ValueError):
+        raise ValueError(f"{name} is not one split's result of `python -m oneshot.evaluate CKPT --split S --json "
+                         f"FILE` (this version's, which records its policy, with rates of whole trials); run that "
+                         f"command again") from None
+    if sum(counts.values()) != row["successes"] or row["trials"] != per_trial * len(colours):
+        raise ValueError(f"{name}: its per-colour rates ({sum(counts.values())} successes in {per_trial} trials x "
+                         f"{len(colours)} colours) disagree with its totals ({row['successes']}/{row['trials']}); "
+                         f"run evaluate again")
+    return row
 
 
 def pool_evaluations(results, names):
     """The mean over training seeds of one recipe's policies, each scored by `python -m oneshot.evaluate
     CKPT --split S --json FILE` on the same split, colours and scenes, with its 95% interval over seeds
-    and colours (`stats.interval`): how the README reports a training profile, not one lucky run.
+    and colours (`stats.interval`): how a training profile is reported (Section IV's success rates),
+    not one lucky run.
 
-    results: the JSON of each file; names: the files, for messages (ValueError names what differs).
-    -> {"split", "colours", "trials_per_colour", "eval_seed", "method", "policies": [{"file", "checkpoint",
-    "training_seed", "successes", "trials", "rate"}], "successes", "trials", "mean_rate", "ci_low",
-    "ci_high", "min_rate", "max_rate", "interval": stats.METHOD}.
+    results: the JSON of each file (at least two); names: the files, for messages. ValueError if a file
+    is not evaluate's, or its counts disagree with its totals, or the results do not pool: another split,
+    dataset, colours, trials, trial scenes, method or recipe (the training config but its seed and data
+    paths, evaluate's --raw, --alpha and --inner-steps), or a training seed twice.
+    -> {"split", "dataset", "colours", "trials_per_colour", "eval_seed", "method", "policies": [{"file",
+    "checkpoint", "training_seed", "successes", "trials", "rate"}], "successes", "trials", "mean_rate",
+    "ci_low", "ci_high", "min_rate", "max_rate", "interval": stats.METHOD}.
     """
-    rows = []
-    for result, name in zip(results, names):
-        scored = [s for s in SCORED if s in result] if isinstance(result, dict) else []
-        try:
-            policy, r = result["policy"], result[scored[0]]
-            rows.append({"file": name, "split": scored[0], "successes": int(r["successes"]), "trials": int(r["trials"]),
-                         **{k: policy[k] for k in ("checkpoint", "training_seed", "method", "trials_per_colour",
-                                                   "eval_seed")},
-                         "colours": sorted(r["per_colour"], key=int),
-                         "per_colour": {c: round(x * policy["trials_per_colour"]) for c, x in r["per_colour"].items()}})
-        except (IndexError, KeyError, TypeError, ValueError):
-            raise ValueError(f"{name} is not one split's result of `python -m oneshot.evaluate ... --json` (this "
-                             f"version's: it records its policy); run that command again") from None
-        if len(scored) != 1:
-            raise ValueError(f"{name} scores {' and '.join(scored)}: pool results of one split")
-    for key in ("split", "colours", "trials_per_colour", "eval_seed", "method"):
+    if len(results) < 2:
+        raise ValueError(f"{len(results)} result given: the mean over seeds needs the results of two or more "
+                         f"training seeds (one policy's own interval is the one evaluate printed)")
+    rows = [_evaluation(result, name) for result, name in zip(results, names)]
+    for key in POOLED:
         values = {str(row[key]) for row in rows}
         if len(values) > 1:
-            raise ValueError(f"these results differ in {key} ({', '.join(sorted(values))}): pool one method's "
-                             f"policies scored on the same split, colours and scenes")
-    seeds = [row["training_seed"] for row in rows]
-    if len(set(seeds)) != len(seeds):
-        raise ValueError(f"training seed(s) repeated among {len(rows)} results ({sorted(seeds)}): one result per "
-                         f"trained policy")
+            which = "; ".join(f"{row['file']}: {str(row[key])[:80]}" for row in rows)
+            raise ValueError(f"these results differ in {key} ({which}): pool one recipe's policies scored on the "
+                             f"same split, colours and scenes (evaluate's --split, --trials and --seed)")
+    by_seed = {}
+    for row in rows:
+        by_seed.setdefault(row["training_seed"], []).append(row["file"])
+    twice = {seed: files for seed, files in by_seed.items() if len(files) > 1}
+    if twice:
+        raise ValueError(f"training seed(s) repeated: {twice}; pool one result per trained policy")
     rows.sort(key=lambda row: row["training_seed"])
-    successes, trials = stats.counts([{"successes": row["successes"], "trials": row["trials"],
-                                       "notes": json.dumps({"per_colour": row["per_colour"]})} for row in rows])
-    mean, lo, hi = stats.interval(successes, trials)
+    colours = rows[0]["colours"]
+    successes = np.array([[row["per_colour"][c] for c in colours] for row in rows], np.int64)
+    mean, lo, hi = stats.interval(successes, np.full_like(successes, rows[0]["trials_per_colour"]))
     rates = [row["successes"] / row["trials"] for row in rows]
     first = rows[0]
-    return {"split": first["split"], "colours": len(first["colours"]), "trials_per_colour": first["trials_per_colour"],
-            "eval_seed": first["eval_seed"], "method": first["method"],
+    return {**{k: first[k] for k in ("split", "dataset", "trials_per_colour", "eval_seed", "method")},
+            "colours": len(colours),
             "policies": [{k: row[k] for k in ("file", "checkpoint", "training_seed", "successes", "trials")}
                          | {"rate": row["successes"] / row["trials"]} for row in rows],
             "successes": sum(row["successes"] for row in rows), "trials": sum(row["trials"] for row in rows),

@@ -1,5 +1,5 @@
-"""Layer normalisation after each convolution (MIL's released code: `norm='layer_norm'`, center=True,
-scale=False), as autograd primitives whose VJPs are written with primitives and autograd.numpy, so that
+"""Layer normalisation after each convolution (paper Section IV's network as MIL's released code runs it:
+`norm='layer_norm'`, center=True, scale=False), as autograd primitives whose VJPs are written with primitives and autograd.numpy, so that
 MAML's second-order meta-gradient differentiates it twice.
 
 Per frame, over its H x W x C map of n values, with s = 1 / sqrt(var + eps):
@@ -47,7 +47,7 @@ def _frame_dot(a, b):
 
 
 def _centred_and_inv_std(x):
-    """(x - mean, s) of each frame's map."""
+    """(x - mean, s) of each frame's map: x (..., H, W, C) -> (same shape, (..., 1, 1, 1))."""
     n = _count(x)
     c = x - _frame_sum(x) / n
     return c, 1 / np.sqrt(_frame_dot(c, c) / n + LN_EPSILON)
@@ -70,7 +70,8 @@ def normalise(x):
 @primitive
 def normalise_dx(g, x_hat, s):
     """The VJP of `normalise` at x (x_hat = normalise(x), s = inv_std(x)) for the cotangent g:
-    s (g - mean(g) - x_hat mean(g x_hat)). Linear and symmetric in g."""
+    s (g - mean(g) - x_hat mean(g x_hat)). Linear and symmetric in g.
+    g, x_hat: (..., H, W, C); s: (..., 1, 1, 1) -> (..., H, W, C)."""
     n = _count(g)
     out = x_hat * (_frame_dot(g, x_hat) / n)
     out += _frame_sum(g) / n
@@ -92,18 +93,18 @@ def layer_norm(x, offset):
     """Layer normalisation of each frame's feature map, offset only, between a convolution and its ReLU:
     x (..., H, W, C) -> the same shape, (x - mean) / sqrt(var + LN_EPSILON) + offset, mean and var over
     the frame's H, W and C. offset: (C,) shared, or (B, C) per task against x (B, T, H, W, C)."""
-    return normalise(x) + _per_task(offset)
+    return normalise(x) + _per_task(offset, anp.ndim(x))
 
 
 def layer_norm_reference(x, offset):
     """`layer_norm` in plain autograd.numpy (what the tests compare it with)."""
     mean = _mean(x)
     centred = x - mean
-    return centred / anp.sqrt(_mean(centred * centred) + LN_EPSILON) + _per_task(offset)
+    return centred / anp.sqrt(_mean(centred * centred) + LN_EPSILON) + _per_task(offset, anp.ndim(x))
 
 
-def _per_task(offset):
-    """(C,) stays; per task (B, C) -> (B, 1, 1, 1, C), against (B, T, H, W, C)."""
+def _per_task(offset, ndim):
+    """(C,) stays; per task (B, C) -> (B, 1, ..., 1, C), against x (B, ..., C) of `ndim` axes."""
     if anp.ndim(offset) > 1:
-        return anp.reshape(offset, (anp.shape(offset)[0], 1, 1, 1, anp.shape(offset)[-1]))
+        return anp.reshape(offset, (anp.shape(offset)[0],) + (1,) * (ndim - 2) + (anp.shape(offset)[-1],))
     return offset
