@@ -12,6 +12,7 @@ import pytest
 
 from oneshot.data import collection, datasets
 from oneshot.expert import controller
+from oneshot.training import checkpoint
 from oneshot.world import palette
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.render import world_to_pixels
@@ -279,3 +280,23 @@ def test_a_test_scene_draws_its_distractors_from_the_test_colours():
         PaletteConfig(mode="grid", test_colours=((0.0, 1.0, 1.0),))     # a validation colour itself
     with pytest.raises(ValueError, match="test_colours"):
         PaletteConfig(test_colours=((7.5, 1.0, 1.0),))                  # a training hue
+
+
+def test_files_of_the_test_levels_versions_read_as_the_same_test_colours():
+    """Checkpoints and datasets written between 87055e1 and 18fc823 saved `test_levels`, (saturation,
+    value) at each held-out hue: they load, with those colours, in that order."""
+    levels = [[0.8, 1.0], [1.0, 0.8], [0.8, 0.8]]                      # that version's hues palette
+    saved = {"size": 48, "heldout_every": 4, "min_separation_deg": 60.0, "mode": "hues", "saturations": [1.0],
+             "values": [1.0], "guard": 0, "test_levels": levels}
+    cfg = palette.saved_config(saved)
+    test = palette.split_colours("test", cfg)
+    rgb = np.asarray(palette.palette_rgb(cfg))[test].astype(float)
+    expected = [255 * np.array(colorsys.hsv_to_rgb(h / 48, s, v)) for h in palette.heldout_hues(cfg) for s, v in levels]
+    np.testing.assert_allclose(rgb, expected, atol=1)                  # hue by hue, level by level
+    grid = dataclasses.asdict(palette.PaletteConfig(mode="grid"))      # the grid's: the same colours as now
+    grid["test_levels"] = [list(t[1:]) for t in grid.pop("test_colours")]
+    assert palette.saved_config(grid) == palette.PaletteConfig(mode="grid")
+    world = {"image_size": 32, "horizon": 20, "arm": {"max_torque": 1.0}, "palette": grid}
+    assert checkpoint.world_fields(world, "here")["palette"] == palette.PaletteConfig(mode="grid")
+    with pytest.raises(TypeError):                                     # what an old file met before
+        palette.PaletteConfig(**grid)

@@ -30,7 +30,6 @@ from oneshot.data import npz
 from oneshot.tools import files
 from oneshot.world import palette
 from oneshot.world.arm import ArmConfig
-from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
 
 FORMAT_VERSION = 1
@@ -242,7 +241,7 @@ def world_config(metadata, source="dataset"):
     try:
         world = tuples(metadata["world"])
         world["arm"] = ArmConfig(**tuples(metadata["world"]["arm"]))
-        world["palette"] = PaletteConfig(**metadata["world"]["palette"])
+        world["palette"] = palette.saved_config(metadata["world"]["palette"])
         return WorldConfig(**world)
     except (KeyError, TypeError, ValueError, AttributeError) as e:
         raise DatasetError(f"{source}: its metadata does not describe a world ({type(e).__name__}: {e}); "

@@ -33,7 +33,7 @@ from oneshot.policy import network
 from oneshot.training.config import TrainConfig
 from oneshot.tools.files import atomic_write, loads_json
 from oneshot.policy.network import STRIDE, NetworkConfig
-from oneshot.world.palette import PaletteConfig
+from oneshot.world.palette import saved_config
 
 FORMAT_VERSION = 1
 FIX = "re-train it, or use another checkpoint"
@@ -270,7 +270,7 @@ def world_fields(world, where, fix=FIX):
     or malformed."""
     try:
         out = {"image_size": world["image_size"], "horizon": world["horizon"],
-               "max_torque": world["arm"]["max_torque"], "palette": PaletteConfig(**world["palette"])}
+               "max_torque": world["arm"]["max_torque"], "palette": saved_config(world["palette"])}
     except (KeyError, TypeError, ValueError) as e:
         raise CheckpointError(f"{where} is not a world config ({e!r}); {fix}") from e
     for key, like in (("image_size", 0), ("horizon", 0), ("max_torque", 0.0)):

@@ -115,6 +115,17 @@ def per_hue(cfg=PaletteConfig()):
     return len(cfg.saturations) * len(cfg.values)
 
 
+def saved_config(fields):
+    """A PaletteConfig from its saved fields (a checkpoint's or a dataset's metadata, `asdict` of one).
+    Files written between commits 87055e1 and 18fc823 name the test colours `test_levels`, (saturation,
+    value) pairs at each held-out hue itself: those are the test colours (0, saturation, value), and they
+    are read as such (the same colours, in the same order)."""
+    fields = dict(fields)
+    if "test_levels" in fields and "test_colours" not in fields:
+        fields["test_colours"] = tuple((0.0, *level) for level in fields.pop("test_levels"))
+    return PaletteConfig(**fields)
+
+
 def n_grid(cfg=PaletteConfig()):
     """How many colours the hue x level grid has (48; the default grid 648): the train and validation
     colours (and guard colours) have indices below it, the test colours from it on."""
