@@ -6,6 +6,7 @@
     squared_error                               the summed squared error of a network's actions
     assert_batched_equals_loop                  oneshot.maml.batched == oneshot.maml.inner's per-task loop
     RIGHT_1, RIGHT_9                            students' right answers to exercises 1 and 9, as source text
+    one_line_error, check_hostile_scenes        what the world, and the Gymnasium env on it, refuse in one line
 """
 import autograd.numpy as anp
 import numpy as np
@@ -13,6 +14,7 @@ import pytest
 
 from oneshot.maml import batched, inner
 from oneshot.maml.inner import InnerLoop
+from oneshot.world.reach import Scene
 
 
 # ----- a tiny model: 2-layer tanh MLP with a summed squared-error loss (stands in for eq. 2) -----
@@ -95,6 +97,40 @@ def assert_batched_equals_loop(params, adapt, evaluate, loss, alpha, steps, **kw
     for k in params:
         np.testing.assert_allclose(g_batched[k], g_loop[k], rtol=1e-8, atol=1e-12, err_msg=k)
     return (v_loop, g_loop), (v_batched, g_batched)
+
+
+# ----- hostile inputs: refused in one line that names the option and the fix -----
+
+def one_line_error(call, match):
+    """call() raises ValueError matching the regex `match`, in one line; returns the message."""
+    with pytest.raises(ValueError, match=match) as error:
+        call()
+    assert "\n" not in str(error.value)
+    return str(error.value)
+
+
+def check_hostile_scenes(reset, step):
+    """reset(options={"scene": ...}) (the world's, or the Gymnasium env's) refuses non-finite, complex or
+    out-of-arena positions, float or bool colours, a bool or float target and anything but a Scene, each
+    in one line; a good scene is copied: NaNs written into the caller's positions after the reset do not
+    move the target (step(torques)'s info says where it is)."""
+    good = Scene(np.array([0, 16, 32]), np.array([[0.1, 0.0], [-0.1, 0.0], [0.0, 0.15]]), target=0)
+    for positions in ([[np.nan, 0.0], [-0.1, 0.0], [0.0, 0.15]], [[0.1, np.inf], [-0.1, 0.0], [0.0, 0.15]],
+                      [[0.1, 0.0], [-0.1, 0.0], [0.0, 0.3]], [[0.1 + 1j, 0], [-0.1, 0], [0, 0.15]]):
+        one_line_error(lambda: reset(options={"scene": Scene(good.colours, np.array(positions), 0)}),
+                       r"reset option 'scene': positions must be finite metres inside the arena .* replace the NaN")
+    for colours in ([0.0, 16.0, 32.0], [0.5, 16, 32], [True, False, False]):
+        one_line_error(lambda: reset(options={"scene": Scene(np.array(colours), good.positions, 0)}),
+                       r"reset option 'scene': colours must be integer palette indices; .* dtype=int")
+    for target in (True, 0.0):
+        one_line_error(lambda: reset(options={"scene": Scene(good.colours, good.positions, target)}),
+                       r"reset option 'scene': target must be an int")
+    one_line_error(lambda: reset(options={"scene": {"colours": [0, 16, 32]}}),
+                   r"reset option 'scene' must be a oneshot.world.reach.Scene; got dict")
+    positions = good.positions.copy()
+    reset(options={"scene": Scene(np.array([0, 16, 32]), positions, 0)})
+    positions[:] = np.nan                                      # the caller's array, after the reset
+    assert step(np.zeros(2))[4]["target_position"].tolist() == [0.1, 0.0]
 
 
 # ----- students' right answers to exercises 1 (is_success) and 9 (wilson_interval), as source text -----

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import oneshot
+from helpers import check_hostile_scenes, one_line_error
 from oneshot.world import arm, palette, render
 from oneshot.world.reach import ReachWorld, Scene, WorldConfig, is_success
 
@@ -269,45 +270,21 @@ def test_the_vector_entry_point_refuses_a_timelimit_other_than_the_horizon():
     assert [envs.step(np.zeros((2, 2)))[3].any() for _ in range(10)] == [False] * 9 + [True]
 
 
-def _one_line_error(call, match):
-    with pytest.raises(ValueError, match=match) as error:
-        call()
-    assert "\n" not in str(error.value)
-    return str(error.value)
-
-
 def test_hostile_scenes_are_refused_naming_the_option_and_the_fix():
     """A NaN position once made every reward NaN; float colours were a raw IndexError."""
     env = ReachEnv()
-    good = Scene(np.array([0, 16, 32]), np.array([[0.1, 0.0], [-0.1, 0.0], [0.0, 0.15]]), target=0)
-    for positions in ([[np.nan, 0.0], [-0.1, 0.0], [0.0, 0.15]], [[0.1, np.inf], [-0.1, 0.0], [0.0, 0.15]],
-                      [[0.1, 0.0], [-0.1, 0.0], [0.0, 0.3]], [[0.1 + 1j, 0], [-0.1, 0], [0, 0.15]]):
-        _one_line_error(lambda: env.reset(options={"scene": Scene(good.colours, np.array(positions), 0)}),
-                        r"reset option 'scene': positions must be finite metres inside the arena .* replace the NaN")
-    for colours in ([0.0, 16.0, 32.0], [0.5, 16, 32], [True, False, False]):
-        _one_line_error(lambda: env.reset(options={"scene": Scene(np.array(colours), good.positions, 0)}),
-                        r"reset option 'scene': colours must be integer palette indices; .* dtype=int")
-    for target in (True, 0.0):
-        _one_line_error(lambda: env.reset(options={"scene": Scene(good.colours, good.positions, target)}),
-                        r"reset option 'scene': target must be an int")
-    _one_line_error(lambda: env.reset(options={"scene": {"colours": [0, 16, 32]}}),
-                    r"reset option 'scene' must be a oneshot.world.reach.Scene; got dict")
-    # the scene accepted is copied: writing into the caller's arrays cannot move the target
-    positions = good.positions.copy()
-    _, info = env.reset(options={"scene": Scene(np.array([0, 16, 32]), positions, 0)})
-    positions[:] = np.nan
-    assert env.step(np.zeros(2))[4]["target_position"].tolist() == [0.1, 0.0]
+    check_hostile_scenes(env.reset, env.step)
 
 
 def test_bool_and_float_target_colours_are_refused_not_read_as_indices():
     """target_colour=True was colour 1; 5.0 said "not a 'train' colour" though 5 is one."""
     for colour in (True, np.True_, False, 5.0, np.float64(5.0), "5"):
-        _one_line_error(lambda: ReachEnv(target_colour=colour),
+        one_line_error(lambda: ReachEnv(target_colour=colour),
                         r"target_colour must be an int; .* choose one of oneshot.world.palette.split_colours\('train'\)")
-        _one_line_error(lambda: ReachEnv().reset(options={"target_colour": colour}), r"target_colour must be an int")
+        one_line_error(lambda: ReachEnv().reset(options={"target_colour": colour}), r"target_colour must be an int")
     assert ReachEnv(target_colour=np.int64(5)).reset(seed=0)[1]["target_colour"] == 5
     for name, value in (("image_size", 32.0), ("horizon", True)):
-        _one_line_error(lambda: ReachEnv(**{name: value}), rf"{name} must be an int")
+        one_line_error(lambda: ReachEnv(**{name: value}), rf"{name} must be an int")
 
 
 
@@ -323,7 +300,7 @@ def test_complex_or_non_numeric_actions_are_refused_not_truncated():
     env = ReachEnv()
     env.reset(seed=0)
     for action in (np.array([0.1 + 0.4j, 0.0]), [0.1j, 0], np.array(["0.1", "0.2"]), np.array([True, False])):
-        _one_line_error(lambda: env.step(action), r"action must be \(2,\) real joint torques in N m; got .* float array")
+        one_line_error(lambda: env.step(action), r"action must be \(2,\) real joint torques in N m; got .* float array")
     assert env.world.t == 0                            # nothing was applied
     for action in (np.array([0.1, -0.2], np.float32), np.array([0, 1]), [0.1, -0.2]):
         env.step(action)                               # real torques of any real dtype still work

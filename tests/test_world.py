@@ -4,6 +4,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from helpers import check_hostile_scenes, one_line_error
 from oneshot.world import palette
 from oneshot.world.render import world_to_pixels
 from oneshot.world.reach import ReachWorld, Scene, WorldConfig, closest_object, is_success, observation_state, sample_scene
@@ -141,12 +142,6 @@ def test_bad_input_is_rejected_with_a_message_naming_the_fix():
 
 
 
-def one_line_error(call, match):
-    with pytest.raises(ValueError, match=match) as error:
-        call()
-    assert "\n" not in str(error.value)
-
-
 def test_bool_and_float_colours_and_sizes_are_refused_where_they_enter():
     """True was colour 1 and 5.0 "not a 'train' colour" though 5 is one; image_size=32.0 was taken. The
     world refuses them itself, not only behind the Gymnasium env."""
@@ -164,23 +159,7 @@ def test_bool_and_float_colours_and_sizes_are_refused_where_they_enter():
 def test_hostile_scenes_are_refused_by_the_world_and_a_good_one_is_copied():
     """A NaN position made every reward NaN; float colours were a raw IndexError when drawn."""
     world = ReachWorld()
-    good = Scene(np.array([0, 16, 32]), np.array([[0.1, 0.0], [-0.1, 0.0], [0.0, 0.15]]), target=0)
-    for positions in ([[np.nan, 0.0], [-0.1, 0.0], [0.0, 0.15]], [[0.1, np.inf], [-0.1, 0.0], [0.0, 0.15]],
-                      [[0.1, 0.0], [-0.1, 0.0], [0.0, 0.3]], [[0.1 + 1j, 0], [-0.1, 0], [0, 0.15]]):
-        one_line_error(lambda: world.reset(options={"scene": Scene(good.colours, np.array(positions), 0)}),
-                       r"reset option 'scene': positions must be finite metres inside the arena .* replace the NaN")
-    for colours in ([0.0, 16.0, 32.0], [0.5, 16, 32], [True, False, False]):
-        one_line_error(lambda: world.reset(options={"scene": Scene(np.array(colours), good.positions, 0)}),
-                       r"reset option 'scene': colours must be integer palette indices; .* dtype=int")
-    for target in (True, 0.0):
-        one_line_error(lambda: world.reset(options={"scene": Scene(good.colours, good.positions, target)}),
-                       r"reset option 'scene': target must be an int")
-    one_line_error(lambda: world.reset(options={"scene": {"colours": [0, 16, 32]}}),
-                   r"reset option 'scene' must be a oneshot.world.reach.Scene; got dict")
-    positions = good.positions.copy()
-    world.reset(options={"scene": Scene(np.array([0, 16, 32]), positions, 0)})
-    positions[:] = np.nan                                      # the caller's array, after the reset
-    assert world.step(np.zeros(2))[4]["target_position"].tolist() == [0.1, 0.0]
+    check_hostile_scenes(world.reset, world.step)
 
 
 def test_complex_or_non_numeric_actions_are_refused_not_truncated():
