@@ -6,6 +6,7 @@
 """
 import dataclasses
 import json
+import math
 
 import numpy as np
 
@@ -90,7 +91,7 @@ SCORED = ("validation", "test")        # the splits an evaluate result scores (i
 POOLED = ("split", "dataset", "colours", "trials_per_colour", "eval_seed", "method", "recipe")  # must agree
 
 
-def _count(value, low, high):
+def _count(value, low=0, high=math.inf):
     """value as an int in [low, high] (not a bool, not a float), else ValueError."""
     if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
         raise ValueError(value)
@@ -105,7 +106,7 @@ def _evaluation(result, name):
         raise ValueError(f"{name} scores {' and '.join(scored)}: pool results of one split")
     try:
         policy, r = result["policy"], result[scored[0]]
-        per_trial = _count(policy["trials_per_colour"], 1, float("inf"))
+        per_trial = _count(policy["trials_per_colour"], 1)
         rates = r["per_colour"]
         if not isinstance(rates, dict) or not rates:
             raise ValueError(rates)
@@ -117,9 +118,9 @@ def _evaluation(result, name):
                 raise ValueError(c)
             counts[c] = round(won)
         row = {"file": name, "split": scored[0], "colours": colours, "per_colour": counts,
-               "successes": _count(r["successes"], 0, float("inf")), "trials": _count(r["trials"], 1, float("inf")),
-               "checkpoint": str(policy["checkpoint"]), "training_seed": _count(policy["training_seed"], 0, float("inf")),
-               "trials_per_colour": per_trial, "eval_seed": _count(policy["eval_seed"], 0, float("inf")),
+               "successes": _count(r["successes"]), "trials": _count(r["trials"], 1),
+               "checkpoint": str(policy["checkpoint"]), "training_seed": _count(policy["training_seed"]),
+               "trials_per_colour": per_trial, "eval_seed": _count(policy["eval_seed"]),
                "method": str(policy["method"]), "dataset": str(policy["dataset"]),
                "recipe": json.dumps(policy["recipe"], sort_keys=True)}
     except (AttributeError, IndexError, KeyError, OverflowError, TypeError, ValueError):
@@ -160,7 +161,7 @@ def pool_evaluations(results, names):
     by_seed = {}
     for row in rows:
         by_seed.setdefault(row["training_seed"], []).append(row["file"])
-    twice = {seed: files for seed, files in by_seed.items() if len(files) > 1}
+    twice = {seed: paths for seed, paths in by_seed.items() if len(paths) > 1}
     if twice:
         raise ValueError(f"training seed(s) repeated: {twice}; pool one result per trained policy")
     rows.sort(key=lambda row: row["training_seed"])

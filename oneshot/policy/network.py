@@ -23,8 +23,9 @@ import autograd.numpy as anp
 import numpy as np
 
 from oneshot.policy import inputs
-from oneshot.policy.layers import (LN_EPSILON, add_bias, concat_last, conv2d, conv_output_size, layer_norm, matmul,
-                                   per_frame, relu, spatial_soft_argmax)
+from oneshot.policy.layers import (add_bias, concat_last, conv2d, conv_output_size, layer_norm, matmul, per_frame,
+                                   relu, spatial_soft_argmax)
+from oneshot.policy.norm import layer_norm_reference
 
 STRIDE = 2   # every convolution halves the image side (MIL: stride 2)
 
@@ -267,11 +268,8 @@ def forward_reference(params, images, states):
     x, i = images, 0
     while f"conv{i}_w" in params:                                   # (T, 32, 32, 3) -> ... -> (T, 4, 4, 40)
         x = conv2d_reference(x, params[f"conv{i}_w"], params[f"conv{i}_b"])
-        h, w, c = x.shape[1:]
         if f"ln{i}_offset" in params:                               # normalise each frame's whole map
-            mean = anp.sum(x, axis=(1, 2, 3), keepdims=True) / (h * w * c)
-            var = anp.sum((x - mean) ** 2, axis=(1, 2, 3), keepdims=True) / (h * w * c)
-            x = (x - mean) / anp.sqrt(var + LN_EPSILON) + params[f"ln{i}_offset"]
+            x = layer_norm_reference(x, params[f"ln{i}_offset"])    # (plain autograd.numpy too)
         x = anp.maximum(x, 0.0)
         i += 1
     T, h, w, c = x.shape
