@@ -14,7 +14,7 @@ from oneshot.experiments import __main__ as command, fig2
 from oneshot.experiments import sweep as sweeping
 from oneshot.training.scoring import wilson_interval
 from oneshot.experiments.fig2 import PROFILES, plan, run_context
-from oneshot.training import run_folder
+from oneshot.training import checkpoint, run_folder
 from oneshot.experiments import stats, summary
 from oneshot.experiments.summary import plot, summarise
 from oneshot.experiments import rows as sweep_rows
@@ -59,7 +59,8 @@ def test_plan_is_every_method_size_and_seed_smallest_first():
         assert sorted((r.method, (r.colours, r.demos), r.seed) for r in runs) == sorted(
             (m, s, seed) for m in cfg.methods for s in cfg.sizes for seed in cfg.seeds)
         assert len({r.run_id for r in runs}) == len(runs)
-        assert all(r.iterations == cfg.iterations for r in runs)
+        assert all(r.iterations == (fig2.LONGER[r.method][1] if r.method in fig2.LONGER else cfg.iterations)
+                   for r in runs)
         # seed by seed, small datasets first: the first len(sizes) x len(methods) runs draw the whole figure
         first = runs[:len(cfg.sizes) * len(cfg.methods)]
         assert {r.seed for r in first} == {cfg.seeds[0]} and [r.size for r in first] == sorted(r.size for r in first)
@@ -68,6 +69,10 @@ def test_plan_is_every_method_size_and_seed_smallest_first():
             assert [r.method for r in first if (r.colours, r.demos) == size] == list(cfg.methods)
     assert plan(PROFILES["quick"])[0].method == PROFILES["quick"].methods[0]
     assert len(plan(PROFILES["paper"])) == 5 * 5 * 3
+    longer = [r for r in plan(PROFILES["ablation"]) if r.method == "mil-released-30k"]
+    assert [(r.seed, r.iterations) for r in longer] == [(0, 30000), (1, 30000)]
+    with pytest.raises(ValueError, match="mil-released-30k continues mil-released to 30000 iterations"):
+        dataclasses.replace(PROFILES["ablation"], iterations=30000)
 
 
 def test_run_spec_names_and_checks():
@@ -357,6 +362,31 @@ def test_a_resumed_run_counts_the_training_time_of_its_killed_sittings(tmp_path)
         else:
             assert "wall" not in resumed and 1000 < resumed["wall_seconds"] < 1000 + 10 * whole["wall_seconds"]
 
+
+
+def test_a_longer_line_continues_its_shorter_runs_checkpoint_and_equals_a_run_from_scratch(tmp_path, monkeypatch):
+    """A LONGER line's run starts from the shorter line's finished run (same size and seed) when it
+    exists: the same numbers as training it from scratch; an unfinished shorter run is not continued."""
+    monkeypatch.setitem(fig2.LONGER, "long", ("mil-conv0", 4))
+    monkeypatch.setitem(fig2.LINES, "long", fig2.LINES["mil-conv0"])
+    short = next(r for r in plan(TINY) if r.seed == 0 and r.method == "mil-conv0" and r.size == 9)
+    long = dataclasses.replace(short, method="long", iterations=4)
+    fig2.ensure_data(TINY, tmp_path / "data", workers=1, progress=False)
+    context = run_context(TINY, tmp_path / "data")
+    scratch = fig2.run_one(long, str(tmp_path / "scratch" / long.run_id), context)
+    fig2.run_one(short, str(tmp_path / "w" / short.run_id), context)
+    continuing, before = [], fig2._continue_shorter
+    monkeypatch.setattr(fig2, "_continue_shorter", lambda *a: continuing.append(before(*a)) or continuing[-1])
+    continued = fig2.run_one(long, str(tmp_path / "w" / long.run_id), context)
+    assert continuing == [True] and without_time([scratch]) == without_time([continued])
+    ckpts = [checkpoint.load(tmp_path / w / long.run_id / "checkpoint.npz") for w in ("scratch", "w")]
+    assert [c["iteration"] for c in ckpts] == [4, 4]
+    assert all(np.array_equal(ckpts[0]["params"][k], ckpts[1]["params"][k]) for k in ckpts[0]["params"])
+    monkeypatch.setattr(fig2, "_continue_shorter", before)
+    # the shorter run killed half way: the longer one trains from its own start, not from it
+    run_folder.train(fig2.run_config(short, context), tmp_path / "k" / short.run_id, progress=False, stop_after=1)
+    assert not fig2._continue_shorter(long, str(tmp_path / "k" / long.run_id), context)
+    assert not os.path.exists(tmp_path / "k" / long.run_id)
 
 
 def test_the_two_level_interval_on_a_case_computed_by_hand():

@@ -7,6 +7,7 @@ split (the test colours for a figure, the validation colours for a search or an 
 """
 import dataclasses
 import os
+import shutil
 import sys
 import time
 from dataclasses import dataclass
@@ -73,8 +74,14 @@ LINES.update({f"mil-released-{d}": dataclasses.replace(LINES["mil-released"], **
                                                                                 for k in change})
               for d, change in RELEASED.items()})
 LINES["mil-released+3steps"] = dataclasses.replace(LINES["mil-released"], inner_steps=3)
-ABLATION = ("mil-all", *(f"mil-all+{d}" for d in RELEASED), "mil-released", *(f"mil-released-{d}" for d in RELEASED),
-            "mil-released+3steps")
+# Lines trained longer than their profile's iterations: {line: (the line it continues, its iterations)}.
+# Its run starts from the shorter line's finished run of the same size and seed when that exists (the
+# checkpoint holds parameters, Adam, moving average and sampling state, and the step size is constant,
+# so this is the same run as one trained from scratch: `run_one`); the released code trains 30,000.
+LONGER = {"mil-released-30k": ("mil-released", 30000)}
+LINES.update({line: LINES[shorter] for line, (shorter, _) in LONGER.items()})
+ABLATION = ("mil-all", *(f"mil-all+{d}" for d in RELEASED), "mil-released", "mil-released-30k",
+            *(f"mil-released-{d}" for d in RELEASED), "mil-released+3steps")
 FIGURE = ("mil-conv0", "mil-all", "contextual", "lstm", "random")      # the lines of the figure
 
 LABELS = {"mil-conv0": "MIL, first convolution adapts", "mil-all": "MIL, every parameter adapts (step 0.25)",
@@ -90,7 +97,7 @@ class SweepConfig:
     sizes: tuple = ((24, 8), (36, 12), (72, 12), (144, 16), (324, 16))  # (colours, demos per colour)
     methods: tuple = FIGURE               # lines of LINES
     seeds: tuple = (0, 1, 2)
-    iterations: int = 10000                # meta-iterations per run: as long as the shipped policy trains
+    iterations: int = 10000                # meta-iterations per run (a LONGER line: its own): as the shipped policy
     trials: int = 5                        # trials per scored colour (5 x 48 test colours: 240 trials)
     palette_mode: str = "grid"             # oneshot.world.palette.PaletteConfig(mode=...): enough colours for 324
     eval_seed: int = 0                     # seed of the trial scenes: the same scenes for every run
@@ -112,6 +119,11 @@ class SweepConfig:
             raise ValueError(f"trials (per scored colour) must be >= 1; got {self.trials}")
         if self.score not in ("validation", "test"):
             raise ValueError(f"score must be 'validation' or 'test'; got {self.score!r}")
+        for line in set(self.methods) & set(LONGER):
+            shorter, iterations = LONGER[line]
+            if LINES[line] != LINES[shorter] or iterations <= self.iterations:
+                raise ValueError(f"{line} continues {shorter} to {iterations} iterations: it needs {shorter}'s "
+                                 f"configuration and more than the profile's {self.iterations} iterations")
         for c, d in self.sizes:                # checks the pair's types and signs
             RunSpec(self.methods[0], c, d, self.seeds[0], self.iterations)
             if c > self.data[0] or d > self.data[1]:
@@ -143,8 +155,13 @@ PROFILES = {
 def plan(cfg):
     """Every line x size x seed of `cfg`, as a list of RunSpec: seed by seed (so the first pass draws the
     whole figure once), within a seed the smaller datasets first, then the lines in the profile's order."""
-    runs = [RunSpec(m, c, d, s, cfg.iterations) for m in cfg.methods for c, d in cfg.sizes for s in cfg.seeds]
+    runs = [RunSpec(m, c, d, s, iterations(cfg, m)) for m in cfg.methods for c, d in cfg.sizes for s in cfg.seeds]
     return sorted(runs, key=lambda r: (r.seed, r.size, cfg.methods.index(r.method)))
+
+
+def iterations(cfg, line):
+    """The meta-iterations of `line`'s runs in the sweep `cfg`: the profile's, or a LONGER line's own."""
+    return LONGER[line][1] if line in LONGER else cfg.iterations
 
 
 def data_paths(cfg, data_dir):
@@ -173,7 +190,7 @@ def run_context(cfg, data_dir="data/fig2"):
     """The small picklable dict every run_fn receives besides its spec and folder: what all runs of the
     sweep share. Paths are absolute (workers may start elsewhere)."""
     paths = data_paths(cfg, data_dir)
-    return {"profile": cfg.name, "trials": cfg.trials,
+    return {"profile": cfg.name, "trials": cfg.trials, "iterations": cfg.iterations,
             "palette_mode": cfg.palette_mode, "eval_seed": cfg.eval_seed, "score": cfg.score, "eval_every": cfg.eval_every,
             "train_data": paths["train"], "validation_data": paths["validation"], "test_data": paths["test"],
             "demos": {split: d for split, (c, d) in cfg.splits().items()}}
@@ -196,6 +213,24 @@ def run_config(spec, context):
         checkpoint_every=250, log_every=50)
 
 
+def _continue_shorter(spec, run_dir, context):
+    """For a LONGER line's run that has not started: copy the checkpoint and log of the shorter line's
+    finished run (same size and seed, the profile's iterations, beside run_dir) into run_dir, so that
+    training continues it. Returns whether it did."""
+    if spec.method not in LONGER or "iterations" not in context:
+        return False
+    shorter = dataclasses.replace(spec, method=LONGER[spec.method][0], iterations=context["iterations"])
+    source = os.path.join(os.path.dirname(os.path.abspath(run_dir)), shorter.run_id)
+    path = os.path.join(source, "checkpoint.npz")
+    if not os.path.exists(path) or checkpoint.load(path)["iteration"] != shorter.iterations:
+        return False
+    os.makedirs(run_dir, exist_ok=True)
+    for name in ("log.jsonl", "checkpoint.npz"):          # the checkpoint last: its presence means "resume"
+        with files.open_read(os.path.join(source, name)) as f, files.atomic_write(os.path.join(run_dir, name)) as g:
+            shutil.copyfileobj(f, g)
+    return True
+
+
 def run_one(spec, run_dir, context):
     """Train (or resume) one run in run_dir and score it on context["trials"] trials per colour of the
     scored split (`imitation.one_shot_success` with the sweep's eval seed: the same scenes for every run).
@@ -209,7 +244,7 @@ def run_one(spec, run_dir, context):
     host.blas_threads(1)                                   # several runs share the cores
     cfg = run_config(spec, context)
     t0 = time.perf_counter()
-    resume = os.path.exists(os.path.join(run_dir, "checkpoint.npz"))
+    resume = os.path.exists(os.path.join(run_dir, "checkpoint.npz")) or _continue_shorter(spec, run_dir, context)
     run_folder.train(cfg, run_dir, resume=resume, progress=False)
     ckpt = checkpoint.load(os.path.join(run_dir, "checkpoint.npz"))
     t_score = time.perf_counter()
