@@ -389,6 +389,17 @@ def test_a_longer_line_continues_its_shorter_runs_checkpoint_and_equals_a_run_fr
     assert not os.path.exists(tmp_path / "k" / long.run_id)
 
 
+def test_final_meta_loss_is_the_median_of_the_last_iterations_logged(tmp_path):
+    log = tmp_path / "log.jsonl"
+    lines = [{"iteration": i, "meta_loss": float(i), "seconds": 1.0} for i in range(50, 1001, 50)]
+    lines.insert(5, {"iteration": 300, "validation_success": 0.5, "trials": 4})
+    log.write_text("".join(json.dumps(r) + "\n" for r in lines))
+    assert fig2.final_meta_loss(log) == 775.0                 # iterations 550..1000
+    assert fig2.final_meta_loss(log, last=100) == 975.0       # 950 and 1000
+    log.write_text(json.dumps({"iteration": 0, "fit_on_validation_colours": {}}) + "\n")
+    assert fig2.final_meta_loss(log) is None
+
+
 def test_the_two_level_interval_on_a_case_computed_by_hand():
     """Two seeds x two colours, 2 trials each. Seed A: 1/2 and 2/2; seed B: 0/2 and 1/2. A replicate draws
     2 seeds and 2 colours with replacement (16 equally likely draws); its rate is the mean over the drawn

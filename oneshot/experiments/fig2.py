@@ -6,11 +6,14 @@ split (the test colours for a figure, the validation colours for a search or an 
 `python -m oneshot.experiments fig2` (`oneshot/experiments/__main__.py`), the machinery `sweep`.
 """
 import dataclasses
+import json
 import os
 import shutil
 import sys
 import time
 from dataclasses import dataclass
+
+import numpy as np
 
 from oneshot.data import collection, datasets
 from oneshot.maml import imitation
@@ -213,6 +216,19 @@ def run_config(spec, context):
         checkpoint_every=250, log_every=50)
 
 
+def final_meta_loss(log_path, last=500):
+    """The median meta-loss (eq. (2) after the inner step, on the training tasks; a baseline's training
+    loss) of the last `last` iterations a run's log.jsonl records: does the line fit its own training
+    tasks? None if it records none (the random policy)."""
+    with files.open_read(log_path, "r") as f:
+        records = [json.loads(line) for line in f if line.strip()]
+    losses = [(r["iteration"], r["meta_loss"]) for r in records if "meta_loss" in r]
+    if not losses:
+        return None
+    end = losses[-1][0]
+    return float(np.median([loss for i, loss in losses if i > end - last]))
+
+
 def _continue_shorter(spec, run_dir, context):
     """For a LONGER line's run that has not started: copy the checkpoint and log of the shorter line's
     finished run (same size and seed, the profile's iterations, beside run_dir) into run_dir, so that
@@ -235,7 +251,8 @@ def run_one(spec, run_dir, context):
     """Train (or resume) one run in run_dir and score it on context["trials"] trials per colour of the
     scored split (`imitation.one_shot_success` with the sweep's eval seed: the same scenes for every run).
     Returns {"wall_seconds", "successes", "trials"} and, for the `notes` column, the successes per scored
-    colour, for MIL the unadapted policy's successes in the same scenes, and what the method records of
+    colour, for MIL the unadapted policy's successes in the same scenes, the training loss at the end
+    (`final_meta_loss`, when the log records one), and what the method records of
     itself (the random policy: the torque std it chose on the validation colours; its torques are drawn
     from the run's own seed). wall_seconds: the meta-training time the checkpoint records (every sitting,
     a killed one too) plus the scoring; for a run begun before checkpoints recorded time, only this
@@ -260,6 +277,9 @@ def run_one(spec, run_dir, context):
         gain = scoring.adaptation_gain(params, scored, method.conditioner(params))   # eq. (2) on a second demo
         notes.update(eq2_before=round(gain["before"], 4), eq2_after=round(gain["after"], 4))
     notes.update(method.notes(params))
+    end = final_meta_loss(os.path.join(run_dir, "log.jsonl"))
+    if end is not None:
+        notes["meta_loss_end"] = round(end, 4)
     if ckpt["seconds"] is None:
         spent, notes["wall"] = time.perf_counter() - t0, "this sitting"
     else:
