@@ -22,6 +22,7 @@ import numpy as np
 from oneshot import methods
 from oneshot.maml import shards
 from oneshot.methods.mil import INNER_PARAMS
+from oneshot.policy.network import INITS
 from oneshot.tools import cli, host
 from oneshot.training import checkpoint, run_data
 from oneshot.training.config import PROFILES, TrainConfig
@@ -46,11 +47,11 @@ def main(argv=None):
              tuple: cli.finite_non_negative_floats, str: str}
     kinds_of = {name: cli.positive_int for name in ("iterations", "meta_batch", "log_every", "eval_trials",
                                                     "checkpoint_every", "shards", "lstm_units")}
-    kinds_of["never_adapt"] = _prefixes
+    kinds_of.update(never_adapt=_prefixes, channels=cli.positive_ints, hidden=cli.positive_ints)
     kinds_of.update(train_demos=cli.at_least(2, " (MAML adapts on one demo and scores another)"),
                     validation_demos=cli.at_least(2, " (one to adapt on, another to evaluate)"))
     choices = {"lr_schedule": ("constant", "cosine"), "inner_params": sorted(INNER_PARAMS), "method": list(methods.REGISTRY),
-               "palette": palette.MODES}
+               "palette": palette.MODES, "init": INITS}
     for field in dataclasses.fields(TrainConfig):
         text = f"override the profile's {field.name}" + (" (true/false)" if field.type is bool else "")
         kind = kinds_of.get(field.name, kinds.get(field.type, field.type))

@@ -75,6 +75,19 @@ def test_plan_is_every_method_size_and_seed_smallest_first():
         dataclasses.replace(PROFILES["ablation"], iterations=30000)
 
 
+def test_the_ablation_lines_are_the_released_details_added_and_removed_one_at_a_time():
+    lines, all_ = fig2.LINES, fig2.LINES["mil-all"]
+    released = lines["mil-released"]
+    for detail, change in fig2.RELEASED.items():
+        added, removed = lines[f"mil-all+{detail}"], lines[f"mil-released-{detail}"]
+        assert {f.name for f in dataclasses.fields(all_) if getattr(added, f.name) != getattr(all_, f.name)} == set(change)
+        assert {f.name for f in dataclasses.fields(released)
+                if getattr(removed, f.name) != getattr(released, f.name)} == set(change)
+    net = fig2.methods.of(lines["mil-released+widths"]).network_config(32)
+    assert (net.channels, net.hidden, net.init, net.layer_norm) == ((30, 30, 30), (200, 200), "released", True)
+    assert released.init == "released" and fig2.PROFILES_TRAIN["released"].init == "released"
+
+
 def test_run_spec_names_and_checks():
     spec = RunSpec("lstm", 72, 12, 1, 6000)
     assert (spec.size, spec.run_id) == (864, "lstm_c72_d12_s1_i6000")

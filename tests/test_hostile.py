@@ -106,6 +106,17 @@ def test_train_refuses_counts_of_zero(capsys, tmp_path, flag):
     nothing_written(tmp_path)
 
 
+@pytest.mark.parametrize("flag, value, says", [
+    ("--hidden", "200,0", "argument --hidden: expected comma-separated whole numbers >= 1, e.g. 200,200; got '200,0'"),
+    ("--channels", "30,x", "argument --channels: expected comma-separated whole numbers >= 1"),
+    ("--init", "xavier", "argument --init: invalid choice: 'xavier'")])
+def test_train_refuses_bad_widths_and_inits_naming_the_flag(capsys, tmp_path, flag, value, says):
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), flag, value])
+    assert says in line
+    nothing_written(tmp_path)
+    assert cli.positive_ints("200,200") == (200, 200)
+
+
 def test_train_refuses_a_meta_batch_larger_than_memory(capsys, tmp_path):
     line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), "--meta-batch", HUGE,
                                            "--train-data", str(tmp_path / "train.npz"),

@@ -154,6 +154,34 @@ def test_init_scales_and_determinism():
     assert not np.any(a["fc0_b"])
 
 
+@pytest.mark.parametrize("init", ["he", "released"])
+def test_biases_offsets_and_the_bias_transformation_start_at_zero(init):
+    """As in MIL's released code (init_bias, `context`, layer_norm's beta): every additive parameter,
+    the layer norm's offsets included, starts at zero, whatever the weights' init."""
+    config = NetworkConfig(layer_norm=True, bias_transform=10, init=init)
+    params = init_params(config, np.random.default_rng(0))
+    additive = [k for k in params if k.endswith(("_b", "_offset")) or k == "bias_transform"]
+    assert len(additive) == 3 + 3 + 1 + 4 + 1 and not any(np.any(params[k]) for k in additive)
+    assert all(np.any(params[k]) for k in params if k not in additive)
+
+
+def test_the_released_init_is_glorot_uniform_convolutions_and_small_dense_weights():
+    """init="released" (--init=xavier): conv weights uniform on [-r, r], r = sqrt(6 / (9 C_in + 9 C_out)),
+    so variance r^2 / 3; every dense weight N(0, 0.01^2); the default "he" differs from both."""
+    released = init_params(NetworkConfig(init="released"), np.random.default_rng(0))
+    he = init_params(NetworkConfig(), np.random.default_rng(0))
+    for name, c_in in (("conv0_w", 3), ("conv1_w", 40), ("conv2_w", 40)):
+        r = np.sqrt(6 / (9 * c_in + 9 * 40))
+        w = released[name]
+        assert np.abs(w).max() <= r and np.abs(w).max() > 0.95 * r
+        assert np.std(w) == pytest.approx(r / np.sqrt(3), rel=0.1)
+        assert np.std(he[name]) == pytest.approx(np.sqrt(2 / (9 * c_in)), rel=0.1)
+    for name in ("fc0_w", "fc3_w", "out_w"):
+        assert np.std(released[name]) == pytest.approx(0.01, rel=0.1) and np.std(he[name]) > 0.05
+    with pytest.raises(ValueError, match="init must be one of he, released; got 'xavier'"):
+        NetworkConfig(init="xavier")
+
+
 def test_bias_transform_adds_a_parameter_and_changes_the_output():
     config = NetworkConfig(bias_transform=10)
     params = init_params(config, np.random.default_rng(0))

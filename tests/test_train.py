@@ -43,6 +43,20 @@ def test_checkpoint_round_trip(tiny, tmp_path):
     assert (tmp_path / "run" / "checkpoint.npz").stat().st_mode & 0o777 == 0o666 & ~umask
 
 
+def test_widths_and_init_reach_the_network_the_checkpoint_and_a_resume(tiny, tmp_path):
+    """The released code's widths and init as TrainConfig fields: the network has them, the checkpoint
+    records them (tuples stay tuples), and a resumed run continues exactly."""
+    cfg = dataclasses.replace(tiny, iterations=4, checkpoint_every=2, channels=(4, 4), hidden=(8,), init="released",
+                              layer_norm=True)
+    whole = run_folder.train(cfg, tmp_path / "whole", progress=False)
+    ckpt = checkpoint.load(tmp_path / "whole" / "checkpoint.npz")
+    assert ckpt["config"] == cfg and ckpt["network"].channels == (4, 4) and ckpt["network"].hidden == (8,)
+    assert ckpt["network"].init == "released" and whole["conv1_w"].shape == (3, 3, 4, 4)
+    assert whole["fc0_w"].shape[1] == 8 and "fc1_w" not in whole
+    run_folder.train(cfg, tmp_path / "split", progress=False, stop_after=2)
+    assert _same(run_folder.train(cfg, tmp_path / "split", resume=True, progress=False), whole)
+
+
 @pytest.mark.parametrize("shards", [1, 2])
 def test_resume_gives_the_parameters_of_an_uninterrupted_run(tiny, tmp_path, shards):
     cfg = dataclasses.replace(tiny, iterations=8, checkpoint_every=3, shards=shards)

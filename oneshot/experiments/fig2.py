@@ -68,6 +68,7 @@ RELEASED = {
     "flat": dict(feature_points=False),                                  # conv output flattened (--fp=False)
     "mb25": dict(meta_batch=25),                                         # meta-batch 25
     "adam": dict(lr=1e-3, clip=0.0),                                     # Adam 1e-3, no outer clip
+    "init": dict(init="released"),                                       # --init=xavier; dense N(0, 0.01^2)
 }
 _ALL = {k: v for change in RELEASED.values() for k, v in change.items()}
 # The ablation (issue 29): from mil-all add each detail; from all of them remove each; and 3 inner steps.
@@ -77,14 +78,18 @@ LINES.update({f"mil-released-{d}": dataclasses.replace(LINES["mil-released"], **
                                                                                 for k in change})
               for d, change in RELEASED.items()})
 LINES["mil-released+3steps"] = dataclasses.replace(LINES["mil-released"], inner_steps=3)
+# The released sim_vision_reach widths (--num_filters=30, --num_fc_layers=3 --layer_size=200: two hidden
+# layers of 200 and the output) in place of the seed paper's 3 x 40 and 4 x 100.
+LINES["mil-released+widths"] = dataclasses.replace(LINES["mil-released"], channels=(30, 30, 30), hidden=(200, 200))
 # Lines trained longer than their profile's iterations: {line: (the line it continues, its iterations)}.
 # Its run starts from the shorter line's finished run of the same size and seed when that exists (the
 # checkpoint holds parameters, Adam, moving average and sampling state, and the step size is constant,
 # so this is the same run as one trained from scratch: `run_one`); the released code trains 30,000.
 LONGER = {"mil-released-30k": ("mil-released", 30000)}
 LINES.update({line: LINES[shorter] for line, (shorter, _) in LONGER.items()})
-ABLATION = ("mil-all", *(f"mil-all+{d}" for d in RELEASED), "mil-released", "mil-released-30k",
-            *(f"mil-released-{d}" for d in RELEASED), "mil-released+3steps")
+# The longer line last: by the time a worker reaches it, the run it continues has finished.
+ABLATION = ("mil-all", *(f"mil-all+{d}" for d in RELEASED), "mil-released", *(f"mil-released-{d}" for d in RELEASED),
+            "mil-released+3steps", "mil-released+widths", "mil-released-30k")
 FIGURE = ("mil-conv0", "mil-all", "contextual", "lstm", "random")      # the lines of the figure
 
 LABELS = {"mil-conv0": "MIL, first convolution adapts", "mil-all": "MIL, every parameter adapts (step 0.25)",

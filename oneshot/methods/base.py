@@ -36,7 +36,8 @@ class Method:
     def network_config(self, image_size):
         """The NetworkConfig of its policy for images of `image_size` pixels (stored in checkpoints)."""
         return NetworkConfig(image_size=image_size, bias_transform=self.cfg.bias_transform,
-                             feature_points=self.cfg.feature_points, layer_norm=self.cfg.layer_norm)
+                             feature_points=self.cfg.feature_points, layer_norm=self.cfg.layer_norm,
+                             init=self.cfg.init, channels=tuple(self.cfg.channels), hidden=tuple(self.cfg.hidden))
 
     def init_params(self, net_cfg, rng):
         """Initial parameters: a dict of float32 arrays. rng: np.random.Generator."""

@@ -30,6 +30,9 @@ from oneshot.policy.norm import layer_norm_reference
 STRIDE = 2   # every convolution halves the image side (MIL: stride 2)
 
 
+INITS = ("he", "released")   # NetworkConfig.init
+
+
 @dataclass(frozen=True)
 class NetworkConfig:
     """Architecture of the policy (MIL, Section IV; defaults reproduce the simulated-reaching network).
@@ -50,6 +53,9 @@ class NetworkConfig:
                     a learnt offset per channel and no scale (MIL's released code); `layer_norm`.
     image_channels: channels of the input image: 3 (RGB), or 6 for the contextual baseline, which
                     stacks the demonstration's final image on the current one (`oneshot.methods.contextual`).
+    init:           the initial weights (`init_params`): "he" (He-normal before a ReLU, Glorot-normal at
+                    the output), or "released" (MIL's released code, `--init=xavier`: Glorot-uniform
+                    convolutions and N(0, 0.01^2) dense weights, tf_utils.init_weights).
     """
 
     image_size: int = 32
@@ -62,8 +68,11 @@ class NetworkConfig:
     feature_points: bool = False
     image_channels: int = 3
     layer_norm: bool = False
+    init: str = "he"
 
     def __post_init__(self):
+        if self.init not in INITS:
+            raise ValueError(f"init must be one of {', '.join(INITS)}; got {self.init!r}")
         if self.kernel % 2 != 1:
             raise ValueError(f"kernel must be odd so that 'same' padding is kernel // 2; got {self.kernel}")
         if self.image_size < 1 or self.bias_transform < 0:
@@ -120,20 +129,32 @@ def param_shapes(config):
 def init_params(config, rng, dtype=np.float32):
     """Random initial parameters: dict name -> array, keys in `param_shapes` order.
 
-    Weights feeding a ReLU get He-normal init (std sqrt(2 / fan_in)); the linear output layer gets
-    Glorot-normal (std sqrt(2 / (fan_in + fan_out))). Biases and the bias-transformation vector start
-    at zero (as in the authors' MIL code). rng: np.random.Generator. Arrays are `dtype` (float32).
+    config.init "he": weights feeding a ReLU get He-normal init (std sqrt(2 / fan_in)); the linear
+    output layer gets Glorot-normal (std sqrt(2 / (fan_in + fan_out))). "released" (MIL's released
+    code, tf_utils.py): convolutions Glorot-uniform on [-r, r], r = sqrt(6 / (fan_in + fan_out)) with
+    fan_in = kernel^2 C_in and fan_out = kernel^2 C_out (`xavier_initializer_conv2d`); every dense
+    weight N(0, 0.01^2) (`init_weights`). Either way biases, the bias-transformation vector and the
+    layer norm's offsets start at zero (as in the released code: `init_bias`, `context`, and
+    `layer_norm`'s beta), feature points' temperature at one. rng: np.random.Generator. Arrays are
+    `dtype` (float32).
     """
     params = {}
     for name, shape in param_shapes(config).items():
-        if name.endswith("_b") or name == "bias_transform":
+        if name.endswith(("_b", "_offset")) or name == "bias_transform":
             params[name] = np.zeros(shape, dtype)
             continue
         if name == "fp_temperature":
             params[name] = np.ones(shape, dtype)
             continue
         fan_in = int(np.prod(shape[:-1]))  # conv: kernel * kernel * C_in; fc: n_in
-        std = np.sqrt(2.0 / (fan_in + shape[-1])) if name == "out_w" else np.sqrt(2.0 / fan_in)
+        if config.init == "released" and name.startswith("conv"):
+            r = np.sqrt(6.0 / (fan_in + int(np.prod(shape[:-2])) * shape[-1]))
+            params[name] = rng.uniform(-r, r, shape).astype(dtype)
+            continue
+        if config.init == "released":
+            std = 0.01
+        else:
+            std = np.sqrt(2.0 / (fan_in + shape[-1])) if name == "out_w" else np.sqrt(2.0 / fan_in)
         params[name] = (std * rng.standard_normal(shape)).astype(dtype)
     return params
 

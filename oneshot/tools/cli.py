@@ -70,6 +70,15 @@ def finite_non_negative_floats(text):
                                          f"got {text!r}") from None
 
 
+def positive_ints(text):
+    """An argparse type: comma-separated whole numbers >= 1, e.g. "200,200" -> (200, 200)."""
+    try:
+        return tuple(positive_int(x) for x in text.split(","))
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated whole numbers >= 1, e.g. 200,200; "
+                                         f"got {text!r}") from None
+
+
 TRUE, FALSE = ("true", "1", "yes"), ("false", "0", "no")
 
 

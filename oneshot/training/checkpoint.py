@@ -42,8 +42,9 @@ FIX = "re-train it, or use another checkpoint"
 # defaults are what those runs used. Every other field must be recorded. (A field added to TrainConfig
 # or NetworkConfig goes here, or the shipped policy stops loading: tests/test_train.py says so.)
 ADDED_LATER = {"config": ("method", "lstm_units", "random_stds", "palette", "tasks", "demos", "test_data",
-                          "test_demos", "never_adapt", "inner_clip", "inner_loss_scale", "layer_norm"),
-               "network": ("image_channels", "layer_norm")}
+                          "test_demos", "never_adapt", "inner_clip", "inner_loss_scale", "layer_norm", "init",
+                          "channels", "hidden"),
+               "network": ("image_channels", "layer_norm", "init")}
 # Config fields renamed since: what older checkpoints call them; and the old default path of the
 # validation colours' dataset (the same data: 12 colours x 10 demos, seed 1), under its new name.
 RENAMED = {"config": {"heldout_data": "validation_data", "heldout_demos": "validation_demos"}, "network": {}}

@@ -41,6 +41,10 @@ class TrainConfig:
     inner_loss_scale: float = 1.0            # eq. (1) descends inner_loss_scale x eq. (2) (1: eq. (2) summed; the
                                              # released code's mean((100 du)^2) over 20 frames x 2 torques: 250)
     layer_norm: bool = False                 # layer norm (offset only) after each convolution (released: on)
+    init: str = "he"                         # initial weights: "he", or "released" (Glorot-uniform convolutions,
+                                             # N(0, 0.01^2) dense weights: --init=xavier, tf_utils.init_weights)
+    channels: tuple = (40, 40, 40)           # filters per convolution (released sim_vision_reach: 30 each)
+    hidden: tuple = (100, 100, 100, 100)     # dense ReLU layers before the output (released: 2 of 200)
     ema: float = 0.0                         # decay of a moving average of the parameters (Polyak
                                              # averaging; 0: off), which evaluation then uses
     learn_alpha: bool = False                # Meta-SGD: meta-learn one step size per adapted element,
@@ -86,9 +90,11 @@ PROFILES = {
     # ONE inner step of 0.001 on every parameter of the released loss mean((100 du)^2) (250 x eq. (2) at
     # T = 20), its gradient clipped to [-20, 20] (--clip); layer norm after each convolution, offsets never
     # adapted (--norm=layer_norm); the conv output flattened (--fp=False); a bias transformation of 10
-    # (--fc_bt); meta-batch 25, Adam 1e-3 without outer clipping, 30000 iterations, no moving average.
+    # (--fc_bt); its initial weights (--init=xavier: Glorot-uniform convolutions, N(0, 0.01^2) dense);
+    # meta-batch 25, Adam 1e-3 without outer clipping, 30000 iterations, no moving average.
     "released": dataclasses.replace(_MIL, inner_steps=1, alpha=0.001, inner_loss_scale=250.0, inner_clip=20.0,
                                     layer_norm=True, never_adapt=("ln",), feature_points=False, bias_transform=10,
+                                    init="released",
                                     meta_batch=25, lr=1e-3, clip=0.0, iterations=30000, eval_every=1000),
     "literal-bias": dataclasses.replace(_MIL, bias_transform=10),
     "literal-points": dataclasses.replace(_MIL, bias_transform=10, feature_points=True),
