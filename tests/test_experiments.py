@@ -292,6 +292,20 @@ def test_cli_seeds_sweeps_part_of_the_profile_into_files_of_its_own(tmp_path, ca
     assert calls(tmp_path / "w") == len(plan(TINY))                           # seed 1's runs not redone
 
 
+def test_cli_lines_sweeps_some_lines_into_files_of_their_own(tmp_path, capsys, tiny_argv):
+    """--lines L --seeds S: one line's runs of one seed (reproducing one run), in files named for them."""
+    line = TINY.methods[1]
+    assert command.main(tiny_argv + ["--lines", line, "--seeds", "0"]) == 0
+    chosen = [r for r in plan(TINY) if r.seed == 0 and r.method == line]
+    assert len(chosen) == len(TINY.sizes) and calls(tmp_path / "w") == len(chosen)
+    assert sorted(d for d in os.listdir(tmp_path / "w") if not d.startswith(".")) == sorted(r.run_id for r in chosen)
+    summary = json.loads((tmp_path / "out" / f"summary_seeds0_{line}.json").read_text())
+    assert list(summary["methods"]) == [line] and summary["runs"] == len(chosen)
+    assert not (tmp_path / "out" / "summary.json").exists()
+    assert command.main(tiny_argv) == 0                                     # the rest, not these again
+    assert calls(tmp_path / "w") == len(plan(TINY))
+
+
 def test_cli_summarise_redoes_a_finished_sweeps_summary_and_refuses_an_unfinished_one(tmp_path, monkeypatch, capsys,
                                                                                        tiny_argv):
     monkeypatch.setattr(command, "PLOTS", False)
@@ -314,6 +328,8 @@ def test_cli_summarise_redoes_a_finished_sweeps_summary_and_refuses_an_unfinishe
 @pytest.mark.parametrize("argv, message", [
     (["fig2", "--profile", "tiny", "--seeds", "7"], "--seeds must be distinct seeds of the tiny profile, [0, 1]"),
     (["fig2", "--profile", "tiny", "--seeds", "0", "0"], "--seeds must be distinct"),
+    (["fig2", "--profile", "tiny", "--lines", "mil-conv0", "nope"], "--lines must be distinct lines of the tiny profile"),
+    (["fig2", "--profile", "tiny", "--lines", "lstm", "lstm"], "--lines must be distinct lines"),
     (["fig2", "--profile", "huge"], "invalid choice: 'huge'"),
     (["fig2", "--workers", "0"], "argument --workers: expected a whole number >= 1"),
     (["fig2", "--workers", "2", "--local-cluster", "2"], "not allowed with argument"),

@@ -5,6 +5,7 @@ run scored on the profile's split (`oneshot.experiments.fig2`):
 
     python -m oneshot.experiments fig2 --profile quick                    # 2 runs at a time, this machine
     python -m oneshot.experiments fig2 --profile paper --seeds 0          # one seed's figure first
+    python -m oneshot.experiments fig2 --profile ablation --lines mil-released --seeds 0   # one run again
     python -m oneshot.experiments fig2 --profile paper --local-cluster 4   # Dask, pip install ".[cluster]"
     python -m oneshot.experiments fig2 --profile paper --scheduler tcp://host:8786
     python -m oneshot.experiments fig2 --profile quick --compare results/fig2_quick   # check a reproduction
@@ -88,6 +89,10 @@ def main(argv=None):
     f.add_argument("--seeds", type=int, nargs="+", default=None, metavar="S",
                    help="only these of the profile's seeds (default: all of them); their summary and figure "
                         "are summary_seeds<S>.json and fig2_seeds<S>.png, beside the whole profile's")
+    f.add_argument("--lines", nargs="+", default=None, metavar="LINE",
+                   help="only these of the profile's lines (default: all of them), e.g. to reproduce one run: "
+                        "--lines mil-released --seeds 0; their summary and figure are summary_<lines>.json and "
+                        "fig2_<lines>.png")
     f.add_argument("--no-progress", action="store_true", help="no progress bar")
     f.add_argument("--keep-rows", action="store_true",
                    help="count the rows already in the results folder as done, though this work folder did not "
@@ -130,6 +135,15 @@ def main(argv=None):
             part = "_seeds" + "-".join(map(str, chosen))
             seeds = f"seed{'s' * (len(chosen) > 1)} {', '.join(map(str, chosen))} of {len(cfg.seeds)}"
         cfg = dataclasses.replace(cfg, seeds=tuple(sorted(args.seeds)))
+    if args.lines is not None:
+        if set(args.lines) - set(cfg.methods) or len(set(args.lines)) != len(args.lines):
+            f.error(f"--lines must be distinct lines of the {cfg.name} profile ({', '.join(cfg.methods)}); "
+                    f"got {' '.join(args.lines)}")
+        if set(args.lines) != set(cfg.methods):
+            chosen = [m for m in cfg.methods if m in args.lines]           # the profile's order
+            part += "_" + "_".join(chosen)
+            seeds += f", {', '.join(chosen)}"
+            cfg = dataclasses.replace(cfg, methods=tuple(chosen))
     out = args.out or os.path.join("results", f"fig2_{cfg.name}")
     try:
         cli.writable_folder(out)
