@@ -88,6 +88,17 @@ def test_the_ablation_lines_are_the_released_details_added_and_removed_one_at_a_
     assert released.init == "released" and fig2.PROFILES_TRAIN["released"].init == "released"
 
 
+@pytest.mark.parametrize("name", ["search", "paper", "quick"])
+def test_each_profile_with_committed_results_still_plans_their_lines(name):
+    """The committed results/fig2_<profile> are reproduced by their command: the profile still names the
+    lines, sizes and seeds they were run with (lines added for other sweeps do not leak into them)."""
+    _, committed = fig2.load_results(os.path.join(os.path.dirname(__file__), "..", "results", f"fig2_{name}"))
+    cfg = PROFILES[name]
+    assert list(cfg.methods) == committed["config"]["methods"]
+    assert [list(s) for s in cfg.sizes] == committed["config"]["sizes"]
+    assert list(cfg.seeds) == committed["config"]["seeds"]
+
+
 def test_run_spec_names_and_checks():
     spec = RunSpec("lstm", 72, 12, 1, 6000)
     assert (spec.size, spec.run_id) == (864, "lstm_c72_d12_s1_i6000")

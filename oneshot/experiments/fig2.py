@@ -59,6 +59,7 @@ LINES = {
     "contextual-lr1e-3": _default(method="contextual", lr=1e-3),
     "lstm-lr1e-3": _default(method="lstm", lr=1e-3),
     "lstm-512": _default(method="lstm", lstm_units=512),
+    "lstm-2048": _default(method="lstm", lstm_units=2048),   # the workshop paper's width (`--profile lstm-2048`)
 }
 # MIL's released code (tianheyu927/mil) in its inner loop and network, detail by detail, as changes to
 # mil-all (`--profile released` is all of them on the released training settings):
@@ -91,6 +92,8 @@ LINES.update({line: LINES[shorter] for line, (shorter, _) in LONGER.items()})
 ABLATION = ("mil-all", *(f"mil-all+{d}" for d in RELEASED), "mil-released", *(f"mil-released-{d}" for d in RELEASED),
             "mil-released+3steps", "mil-released+widths", "mil-released-30k")
 FIGURE = ("mil-conv0", "mil-all", "contextual", "lstm", "random")      # the lines of the figure
+SEARCH = ("mil-conv0", "mil-all", "contextual", "lstm", "mil-all-a0.05", "mil-all-a0.01", "contextual-lr1e-3",
+          "lstm-lr1e-3", "lstm-512")                                  # the hyperparameter search's variants
 
 LABELS = {"mil-conv0": "MIL, first convolution adapts", "mil-all": "MIL, every parameter adapts (step 0.25)",
           "contextual": "contextual policy", "lstm": "LSTM", "random": "random policy"}
@@ -152,9 +155,12 @@ PROFILES = {
     "quick": SweepConfig(name="quick", sizes=((24, 8), (72, 12), (324, 16)), seeds=(0,), iterations=3000),
     "paper": SweepConfig(),
     "search": SweepConfig(name="search", sizes=((72, 12),), seeds=(0,), iterations=3000, score="validation",
-                          methods=tuple(m for m in LINES if m != "random")),
+                          methods=SEARCH),
     "ablation": SweepConfig(name="ablation", sizes=((144, 16),), seeds=(0, 1), score="validation", methods=ABLATION,
                             validation=(36, 10), eval_every=2000),
+    # The workshop paper's LSTM (2048 units) once, at the figure's largest size, on its test colours:
+    # does the baseline's width change the conclusion? (Compare with `paper`'s lstm at 5184.)
+    "lstm-2048": SweepConfig(name="lstm-2048", sizes=((324, 16),), methods=("lstm-2048",), seeds=(0,)),
     "tiny": SweepConfig(name="tiny", sizes=((3, 3), (3, 4)), seeds=(0, 1), iterations=2, trials=2,  # tests
                         data=(3, 4), validation=(2, 2), test=(2, 2)),
 }
