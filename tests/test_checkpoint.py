@@ -14,7 +14,7 @@ from oneshot.data import datasets
 from oneshot.maml import optim
 from oneshot import methods
 from oneshot.policy import network
-from oneshot.training import checkpoint, config, fit_check
+from oneshot.training import checkpoint, config, fit_check, run_folder
 from oneshot.world.arm import ArmConfig
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
@@ -80,9 +80,9 @@ def old_style(meta):
     seconds or checksum, the network's stride, and no config fields added since."""
     for key in ("world", "state_layout", "seconds", "checksum"):
         del meta[key]
-    for key in checkpoint.ADDED_LATER["config"]:
-        del meta["config"][key]
-    del meta["network"]["image_channels"]
+    for key in ("config", "network"):
+        for field in checkpoint.ADDED_LATER[key]:
+            del meta[key][field]
     meta["network"]["stride"] = 2
 
 
@@ -115,6 +115,23 @@ def test_every_method_round_trips(tmp_path, method):
     cfg = dataclasses.replace(config.TrainConfig(), method=method, lstm_units=3, ema=0.5)
     saved = save_tiny(tmp_path / "c.npz", cfg, methods.of(cfg).network_config(8))
     assert_equal(checkpoint.load(tmp_path / "c.npz"), saved)
+
+
+def test_a_layer_norm_run_saved_before_its_offsets_started_at_zero_scores_but_does_not_resume(tmp_path):
+    """Before NetworkConfig recorded `init`, layer-norm offsets began as random draws: such a checkpoint
+    loads (flagged), and resuming it is refused in one message; one saved now resumes."""
+    cfg = dataclasses.replace(CFG, layer_norm=True, never_adapt=("ln",))
+    net = dataclasses.replace(NET, layer_norm=True)
+    for name, edit, drawn in (("now.npz", None, False), ("before.npz", lambda m: m["network"].pop("init"), True)):
+        save_tiny(tmp_path / name, cfg=cfg, net_cfg=net)
+        if edit:
+            rewrite(tmp_path / name, edit)
+        assert checkpoint.load(tmp_path / name)["ln_offsets_drawn"] is drawn
+    assert checkpoint.load(tmp_path / "now.npz")["network"].init == "he"
+    (tmp_path / "run").mkdir()
+    os.replace(tmp_path / "before.npz", tmp_path / "run" / "checkpoint.npz")
+    with pytest.raises(ValueError, match="began with random layer-norm offsets .* start a new run folder"):
+        run_folder._resume(cfg, str(tmp_path / "run" / "checkpoint.npz"), str(tmp_path / "run" / "log.jsonl"))
 
 
 def test_an_old_style_checkpoint_loads_and_is_checked_by_its_network_image_size(tmp_path):

@@ -6,6 +6,7 @@ import fcntl
 import glob
 import json
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -59,8 +60,8 @@ def test_plan_is_every_method_size_and_seed_smallest_first():
         assert sorted((r.method, (r.colours, r.demos), r.seed) for r in runs) == sorted(
             (m, s, seed) for m in cfg.methods for s in cfg.sizes for seed in cfg.seeds)
         assert len({r.run_id for r in runs}) == len(runs)
-        assert all(r.iterations == (fig2.LONGER[r.method][1] if r.method in fig2.LONGER else cfg.iterations)
-                   for r in runs)
+        assert all(r.iterations == fig2.iterations(cfg, r.method) for r in runs)
+        assert all(fig2.iterations(cfg, m) == cfg.iterations for m in cfg.methods if m not in fig2.LONGER)
         # seed by seed, small datasets first: the first len(sizes) x len(methods) runs draw the whole figure
         first = runs[:len(cfg.sizes) * len(cfg.methods)]
         assert {r.seed for r in first} == {cfg.seeds[0]} and [r.size for r in first] == sorted(r.size for r in first)
@@ -88,15 +89,22 @@ def test_the_ablation_lines_are_the_released_details_added_and_removed_one_at_a_
     assert released.init == "released" and fig2.PROFILES_TRAIN["released"].init == "released"
 
 
-@pytest.mark.parametrize("name", ["search", "paper", "quick"])
-def test_each_profile_with_committed_results_still_plans_their_lines(name):
+COMMITTED = sorted(glob.glob(os.path.join(os.path.dirname(__file__), "..", "results", "fig2_*", "summary.json")))
+
+
+@pytest.mark.parametrize("summary_path", COMMITTED, ids=lambda p: os.path.basename(os.path.dirname(p)))
+def test_each_profile_with_committed_results_still_plans_their_lines(summary_path):
     """The committed results/fig2_<profile> are reproduced by their command: the profile still names the
     lines, sizes and seeds they were run with (lines added for other sweeps do not leak into them)."""
-    _, committed = fig2.load_results(os.path.join(os.path.dirname(__file__), "..", "results", f"fig2_{name}"))
-    cfg = PROFILES[name]
+    _, committed = fig2.load_results(os.path.dirname(summary_path))
+    cfg = PROFILES[committed["config"]["name"]]
     assert list(cfg.methods) == committed["config"]["methods"]
     assert [list(s) for s in cfg.sizes] == committed["config"]["sizes"]
     assert list(cfg.seeds) == committed["config"]["seeds"]
+
+
+def test_committed_results_are_found():
+    assert len(COMMITTED) >= 3
 
 
 def test_run_spec_names_and_checks():
@@ -317,6 +325,14 @@ def test_cli_lines_sweeps_some_lines_into_files_of_their_own(tmp_path, capsys, t
     assert calls(tmp_path / "w") == len(plan(TINY))
 
 
+def test_many_lines_make_a_short_file_name():
+    many = PROFILES["ablation"].methods[:-1]
+    assert command.lines_part(["lstm", "random"]) == "lstm_random"
+    short = command.lines_part(many)
+    assert short.startswith(f"{len(many)}lines-") and len(short) < 30 and short == command.lines_part(many)
+    assert short != command.lines_part(many[:-1])
+
+
 def test_cli_summarise_redoes_a_finished_sweeps_summary_and_refuses_an_unfinished_one(tmp_path, monkeypatch, capsys,
                                                                                        tiny_argv):
     monkeypatch.setattr(command, "PLOTS", False)
@@ -406,9 +422,13 @@ def test_a_resumed_run_counts_the_training_time_of_its_killed_sittings(tmp_path)
 
 def test_a_longer_line_continues_its_shorter_runs_checkpoint_and_equals_a_run_from_scratch(tmp_path, monkeypatch):
     """A LONGER line's run starts from the shorter line's finished run (same size and seed) when it
-    exists: the same numbers as training it from scratch; an unfinished shorter run is not continued."""
+    exists: the same numbers, log and notes as training it from scratch, and it says what it continued;
+    a shorter run killed half way, or trained with another config, is not continued."""
     monkeypatch.setitem(fig2.LONGER, "long", ("mil-conv0", 4))
     monkeypatch.setitem(fig2.LINES, "long", fig2.LINES["mil-conv0"])
+    every = fig2.run_config
+    monkeypatch.setattr(fig2, "run_config", lambda spec, context: dataclasses.replace(
+        every(spec, context), log_every=1, eval_every=1, eval_trials=1))        # a log line per iteration
     short = next(r for r in plan(TINY) if r.seed == 0 and r.method == "mil-conv0" and r.size == 9)
     long = dataclasses.replace(short, method="long", iterations=4)
     fig2.ensure_data(TINY, tmp_path / "data", workers=1, progress=False)
@@ -418,15 +438,30 @@ def test_a_longer_line_continues_its_shorter_runs_checkpoint_and_equals_a_run_fr
     continuing, before = [], fig2._continue_shorter
     monkeypatch.setattr(fig2, "_continue_shorter", lambda *a: continuing.append(before(*a)) or continuing[-1])
     continued = fig2.run_one(long, str(tmp_path / "w" / long.run_id), context)
-    assert continuing == [True] and without_time([scratch]) == without_time([continued])
+    assert continuing == [True] and continued.pop("continued_from") == short.run_id
+    assert "continued_from" not in scratch and without_time([scratch]) == without_time([continued])
+    assert "meta_loss_end" in scratch
+    logs = [[{k: v for k, v in json.loads(line).items() if k != "seconds"}
+             for line in open(tmp_path / w / long.run_id / "log.jsonl")] for w in ("scratch", "w")]
+    assert logs[0] == logs[1] and [r["iteration"] for r in logs[0] if "meta_loss" in r] == [1, 2, 3, 4]
+    assert any("validation_success" in r for r in logs[0])
     ckpts = [checkpoint.load(tmp_path / w / long.run_id / "checkpoint.npz") for w in ("scratch", "w")]
     assert [c["iteration"] for c in ckpts] == [4, 4]
     assert all(np.array_equal(ckpts[0]["params"][k], ckpts[1]["params"][k]) for k in ckpts[0]["params"])
     monkeypatch.setattr(fig2, "_continue_shorter", before)
-    # the shorter run killed half way: the longer one trains from its own start, not from it
+    # the shorter run killed half way, or trained on other data: the longer one trains from its own start
     run_folder.train(fig2.run_config(short, context), tmp_path / "k" / short.run_id, progress=False, stop_after=1)
     assert not fig2._continue_shorter(long, str(tmp_path / "k" / long.run_id), context)
+    shutil.copytree(tmp_path / "w" / short.run_id, tmp_path / "w3" / short.run_id)
+    other = dict(context, train_data=context["validation_data"])
+    assert not fig2._continue_shorter(long, str(tmp_path / "w3" / long.run_id), other)
+    assert fig2._continue_shorter(long, str(tmp_path / "w3" / long.run_id), context)        # the same, as trained
     assert not os.path.exists(tmp_path / "k" / long.run_id)
+    assert fig2._continue_shorter(long, str(tmp_path / "w2" / long.run_id), context) is False   # no shorter run there
+    monkeypatch.setitem(fig2.LINES, "long", dataclasses.replace(fig2.LINES["mil-conv0"], lr_schedule="cosine"))
+    monkeypatch.setitem(fig2.LINES, "mil-conv0", fig2.LINES["long"])
+    with pytest.raises(ValueError, match="long continues mil-conv0 to 4 iterations: .* a constant step size"):
+        dataclasses.replace(TINY, methods=("mil-conv0", "long"))
 
 
 def test_final_meta_loss_is_the_median_of_the_last_iterations_logged(tmp_path):

@@ -114,7 +114,10 @@ def test_train_refuses_bad_widths_and_inits_naming_the_flag(capsys, tmp_path, fl
     line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), flag, value])
     assert says in line
     nothing_written(tmp_path)
-    assert cli.positive_ints("200,200") == (200, 200)
+
+
+def test_widths_are_comma_separated_whole_numbers():
+    assert cli.positive_ints("200,200") == (200, 200) and cli.positive_ints("30") == (30,)
 
 
 def test_train_refuses_a_meta_batch_larger_than_memory(capsys, tmp_path):

@@ -182,6 +182,19 @@ def test_the_released_init_is_glorot_uniform_convolutions_and_small_dense_weight
         NetworkConfig(init="xavier")
 
 
+def test_widths_and_init_are_checked_when_a_config_is_made_and_lists_become_tuples():
+    from oneshot.training.config import TrainConfig
+    for make in (NetworkConfig, TrainConfig):
+        assert make(channels=[30, 30], hidden=[200]).channels == (30, 30) == make(channels=(30, 30)).channels
+        assert make(hidden=[200]) == make(hidden=(200,)) and make(hidden=()).hidden == ()
+        for bad, says in (({"channels": (30, 0)}, "channels must be whole numbers >= 1"),
+                          ({"hidden": (2.5,)}, "hidden must be whole numbers >= 1"),
+                          ({"hidden": (True,)}, "hidden must be whole numbers >= 1"),
+                          ({"init": "xavier"}, "init must be one of he, released")):
+            with pytest.raises(ValueError, match=says):
+                make(**bad)
+
+
 def test_bias_transform_adds_a_parameter_and_changes_the_output():
     config = NetworkConfig(bias_transform=10)
     params = init_params(config, np.random.default_rng(0))

@@ -16,18 +16,21 @@ It writes `results/fig2_<profile>/` where it runs (or `--out`): runs.csv (one ro
 summary.json (per line and size: the mean over seeds and its 95% interval over seeds and scored
 colours, paired differences between lines; `oneshot.experiments.stats`) and fig2.png (pip install
 ".[plots]"), once every run of the profile has finished; `--seeds 0` does the runs of seed 0 alone and
-writes summary_seeds0.json and fig2_seeds0.png. Each run works in `runs/fig2/<run id>/` (the run id
+writes summary_seeds0.json and fig2_seeds0.png, and `--lines L ...` (with `--seeds`: one run) its own
+summary_<...>_L.json. Each run works in `runs/fig2/<run id>/` (the run id
 names everything a run depends on). Run the same command again to resume: done runs are skipped,
 interrupted ones continue from their own checkpoints; rows this work folder did not produce (e.g. the
 committed ones of a clone) are run again, never counted as done.
 
 A sweep takes any `concurrent.futures.Executor` (a process pool by default; Dask's
 `Client.get_executor()`), so the function that performs one run, `run_fn(spec, run_dir, context)`, must
-be a module-level function (it is pickled) and write only inside its `run_dir`.
+be a module-level function (it is pickled) and write only inside its `run_dir` (Figure 2's `run_one`
+also reads a sibling folder: the run a longer line continues, `fig2.LONGER`).
 """
 import argparse
 import contextlib
 import dataclasses
+import hashlib
 import os
 import shlex
 import signal
@@ -91,8 +94,8 @@ def main(argv=None):
                         "are summary_seeds<S>.json and fig2_seeds<S>.png, beside the whole profile's")
     f.add_argument("--lines", nargs="+", default=None, metavar="LINE",
                    help="only these of the profile's lines (default: all of them), e.g. to reproduce one run: "
-                        "--lines mil-released --seeds 0; their summary and figure are summary_<lines>.json and "
-                        "fig2_<lines>.png")
+                        "--lines mil-released --seeds 0; their summary and figure are summary[_seeds<S>]_<line>_"
+                        "<line>....json and .png (many lines: _<N>lines-<hash>)")
     f.add_argument("--no-progress", action="store_true", help="no progress bar")
     f.add_argument("--keep-rows", action="store_true",
                    help="count the rows already in the results folder as done, though this work folder did not "
@@ -141,7 +144,7 @@ def main(argv=None):
                     f"got {' '.join(args.lines)}")
         if set(args.lines) != set(cfg.methods):
             chosen = [m for m in cfg.methods if m in args.lines]           # the profile's order
-            part += "_" + "_".join(chosen)
+            part += "_" + lines_part(chosen)
             seeds += f", {', '.join(chosen)}"
             cfg = dataclasses.replace(cfg, methods=tuple(chosen))
     out = args.out or os.path.join("results", f"fig2_{cfg.name}")
@@ -188,6 +191,13 @@ def main(argv=None):
     if args.compare:
         return _compare(rows, args.compare)
     return 0
+
+
+def lines_part(lines):
+    """The part of a summary's file name that names `--lines`: the lines joined by "_", or for many lines
+    (a file name must stay under the 255 bytes of most file systems) "<N>lines-<hash of the names>"."""
+    named = "_".join(lines)
+    return named if len(named) <= 100 else f"{len(lines)}lines-{hashlib.sha256(named.encode()).hexdigest()[:8]}"
 
 
 def _pairs(lines):

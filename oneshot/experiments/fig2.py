@@ -87,6 +87,7 @@ LINES["mil-released+widths"] = dataclasses.replace(LINES["mil-released"], channe
 # checkpoint holds parameters, Adam, moving average and sampling state, and the step size is constant,
 # so this is the same run as one trained from scratch: `run_one`); the released code trains 30,000.
 LONGER = {"mil-released-30k": ("mil-released", 30000)}
+CONTINUED = "CONTINUED"   # in a LONGER run's folder: the run id it continued (`_continue_shorter`)
 LINES.update({line: LINES[shorter] for line, (shorter, _) in LONGER.items()})
 # The longer line last: by the time a worker reaches it, the run it continues has finished.
 ABLATION = ("mil-all", *(f"mil-all+{d}" for d in RELEASED), "mil-released", *(f"mil-released-{d}" for d in RELEASED),
@@ -132,9 +133,10 @@ class SweepConfig:
             raise ValueError(f"score must be 'validation' or 'test'; got {self.score!r}")
         for line in set(self.methods) & set(LONGER):
             shorter, iterations = LONGER[line]
-            if LINES[line] != LINES[shorter] or iterations <= self.iterations:
+            if LINES[line] != LINES[shorter] or LINES[line].lr_schedule != "constant" or iterations <= self.iterations:
                 raise ValueError(f"{line} continues {shorter} to {iterations} iterations: it needs {shorter}'s "
-                                 f"configuration and more than the profile's {self.iterations} iterations")
+                                 f"configuration, a constant step size (a schedule depends on the iterations) "
+                                 f"and more than the profile's {self.iterations} iterations")
         for c, d in self.sizes:                # checks the pair's types and signs
             RunSpec(self.methods[0], c, d, self.seeds[0], self.iterations)
             if c > self.data[0] or d > self.data[1]:
@@ -242,19 +244,28 @@ def final_meta_loss(log_path, last=500):
 
 def _continue_shorter(spec, run_dir, context):
     """For a LONGER line's run that has not started: copy the checkpoint and log of the shorter line's
-    finished run (same size and seed, the profile's iterations, beside run_dir) into run_dir, so that
-    training continues it. Returns whether it did."""
+    finished run (same size and seed, the profile's iterations, beside run_dir, trained with the config
+    this sweep gives it) into run_dir, so that training continues it, and record its run id in
+    run_dir/CONTINUED. Returns whether it did; if the shorter run has not finished (more workers than
+    runs ahead of it), the longer one trains from its own start: the same numbers, at full cost."""
     if spec.method not in LONGER or "iterations" not in context:
         return False
     shorter = dataclasses.replace(spec, method=LONGER[spec.method][0], iterations=context["iterations"])
     source = os.path.join(os.path.dirname(os.path.abspath(run_dir)), shorter.run_id)
     path = os.path.join(source, "checkpoint.npz")
-    if not os.path.exists(path) or checkpoint.load(path)["iteration"] != shorter.iterations:
+    if not os.path.exists(path):
         return False
-    os.makedirs(run_dir, exist_ok=True)
-    for name in ("log.jsonl", "checkpoint.npz"):          # the checkpoint last: its presence means "resume"
-        with files.open_read(os.path.join(source, name)) as f, files.atomic_write(os.path.join(run_dir, name)) as g:
-            shutil.copyfileobj(f, g)
+    ckpt, expected = checkpoint.load(path), run_config(shorter, context)
+    trained_as = dataclasses.replace(ckpt["config"], **{n: getattr(expected, n) for n in run_folder.RESUMABLE})
+    if ckpt["iteration"] != shorter.iterations or trained_as != expected or ckpt["ln_offsets_drawn"]:
+        return False
+    with run_folder.lock_run(run_dir):
+        for name in ("log.jsonl", "checkpoint.npz"):      # the checkpoint last: its presence means "resume"
+            with files.open_read(os.path.join(source, name)) as f, \
+                    files.atomic_write(os.path.join(run_dir, name)) as g:
+                shutil.copyfileobj(f, g)
+        with files.atomic_write(os.path.join(run_dir, CONTINUED)) as f:
+            f.write(shorter.run_id.encode("utf-8"))
     return True
 
 
@@ -288,6 +299,9 @@ def run_one(spec, run_dir, context):
         gain = scoring.adaptation_gain(params, scored, method.conditioner(params))   # eq. (2) on a second demo
         notes.update(eq2_before=round(gain["before"], 4), eq2_after=round(gain["after"], 4))
     notes.update(method.notes(params))
+    if os.path.exists(os.path.join(run_dir, CONTINUED)):          # its first iterations are another run's
+        with files.open_read(os.path.join(run_dir, CONTINUED), "r") as f:
+            notes["continued_from"] = f.read()
     end = final_meta_loss(os.path.join(run_dir, "log.jsonl"))
     if end is not None:
         notes["meta_loss_end"] = round(end, 4)

@@ -6,7 +6,7 @@ per finished run (the machinery of `oneshot.experiments.fig2`; `summary` summari
 Each run is `run_fn(spec, run_dir, context) -> {"successes", "trials", ...}`, called in a worker of the
 executor (a process pool by default; a thread pool; Dask's `Client.get_executor()`): a module-level
 function, since it is pickled, that writes only inside its own `run_dir`, where it keeps whatever it
-needs to resume. results/runs.csv is rewritten atomically after every finished run, and the row is
+needs to resume (it may read its siblings: Figure 2's longer lines continue another run). results/runs.csv is rewritten atomically after every finished run, and the row is
 also kept in work/<run id>/row.json: a run counts as done only when runs.csv holds the row its own work
 folder produced, so rows this work folder did not produce (committed results, another machine's) are
 never mistaken for a reproduction; they are run again, and replaced. Running the same sweep again

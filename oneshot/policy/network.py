@@ -33,6 +33,15 @@ STRIDE = 2   # every convolution halves the image side (MIL: stride 2)
 INITS = ("he", "released")   # NetworkConfig.init
 
 
+def check_architecture(init, channels, hidden):
+    """Raise ValueError unless init is one of INITS and every width is a whole number >= 1."""
+    if init not in INITS:
+        raise ValueError(f"init must be one of {', '.join(INITS)}; got {init!r}")
+    for name, widths in (("channels", channels), ("hidden", hidden)):
+        if not all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 1 for n in widths):
+            raise ValueError(f"{name} must be whole numbers >= 1 (one per layer); got {widths!r}")
+
+
 @dataclass(frozen=True)
 class NetworkConfig:
     """Architecture of the policy (MIL, Section IV; defaults reproduce the simulated-reaching network).
@@ -71,8 +80,9 @@ class NetworkConfig:
     init: str = "he"
 
     def __post_init__(self):
-        if self.init not in INITS:
-            raise ValueError(f"init must be one of {', '.join(INITS)}; got {self.init!r}")
+        check_architecture(self.init, self.channels, self.hidden)
+        object.__setattr__(self, "channels", tuple(self.channels))   # a list (from JSON, a caller) compares unequal
+        object.__setattr__(self, "hidden", tuple(self.hidden))
         if self.kernel % 2 != 1:
             raise ValueError(f"kernel must be odd so that 'same' padding is kernel // 2; got {self.kernel}")
         if self.image_size < 1 or self.bias_transform < 0:

@@ -96,7 +96,9 @@ def load(path):
     "network", "world", "state_layout"}: "ema" is the moving average of the parameters, or None if the
     run kept none (cfg.ema = 0); "world" the meta-training data's world (a dict) and "state_layout"
     the robot state's layout (`datasets.STATE_LAYOUT` when saved; both None in older checkpoints);
-    "seconds" the meta-training time up to this checkpoint, resumes included (None in older ones).
+    "seconds" the meta-training time up to this checkpoint, resumes included (None in older ones);
+    "ln_offsets_drawn" True for a layer-normalised network saved before its offsets started at zero
+    (before NetworkConfig recorded `init`: they began as random draws; such a run is not resumed).
     `policy_params(ckpt)` picks the parameters to act with. Raises CheckpointError if anything in the
     file is damaged or inconsistent."""
     path = os.fspath(path)
@@ -146,7 +148,8 @@ def load(path):
     ema = {k[len("ema/"):]: v for k, v in arrays.items() if k.startswith("ema/")} or None
     return {"params": params, "ema": ema, "adam": optim.state_from_arrays(arrays),
             "iteration": meta["iteration"], "rng": rng, "config": cfg, "network": net_cfg,
-            "world": world, "state_layout": meta["state_layout"], "seconds": meta["seconds"]}
+            "world": world, "state_layout": meta["state_layout"], "seconds": meta["seconds"],
+            "ln_offsets_drawn": net_cfg.layer_norm and "init" not in network_fields}
 
 
 def _read_meta(path, meta):

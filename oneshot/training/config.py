@@ -9,6 +9,8 @@ Every field can be overridden on the command line (`--inner-steps 1`, `--lr 0.00
 import dataclasses
 from dataclasses import dataclass
 
+from oneshot.policy.network import check_architecture
+
 
 @dataclass(frozen=True)
 class TrainConfig:
@@ -65,6 +67,11 @@ class TrainConfig:
     palette: str = "hues"                    # colours when collecting: "hues" (48) or "grid" (`oneshot.world.palette`)
     tasks: int = 0                           # meta-train on the first `tasks` colours of train_data (0: all)
     demos: int = 0                           # ... and the first `demos` demos of each (0: all)
+
+    def __post_init__(self):
+        check_architecture(self.init, self.channels, self.hidden)     # before any data is collected
+        object.__setattr__(self, "channels", tuple(self.channels))
+        object.__setattr__(self, "hidden", tuple(self.hidden))
 
 
 # MIL's meta-learning settings (TrainConfig's defaults), 2000 iterations.

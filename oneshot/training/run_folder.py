@@ -170,6 +170,10 @@ def _resume(cfg, ckpt_path, log_path, *data):
     """(state, network config, meta-training seconds so far) from the run's checkpoint, after checking
     that it was trained with this config (but RESUMABLE fields) on data like `data`."""
     ckpt = checkpoint.load(ckpt_path)
+    if ckpt["ln_offsets_drawn"]:
+        raise ValueError(f"{ckpt_path!r} began with random layer-norm offsets (saved before they started at "
+                         f"zero, as in MIL's released code): resuming it would mix two initialisations; start a "
+                         f"new run folder (the checkpoint still scores as it is)")
     for dataset, path in zip(data, (cfg.train_data, cfg.validation_data)):
         fit_check.check_data(ckpt, dataset["metadata"], ckpt_path, path)   # e.g. the file was replaced
     stored = dataclasses.replace(ckpt["config"], **{name: getattr(cfg, name) for name in RESUMABLE})
