@@ -11,7 +11,7 @@ import shutil
 import numpy as np
 import pytest
 
-from oneshot.experiments import __main__ as command, fig2
+from oneshot.experiments import __main__ as command, fig2, lines
 from oneshot.experiments import sweep as sweeping
 from oneshot.training.scoring import wilson_interval
 from oneshot.experiments.fig2 import PROFILES, plan, run_context
@@ -61,7 +61,7 @@ def test_plan_is_every_method_size_and_seed_smallest_first():
             (m, s, seed) for m in cfg.methods for s in cfg.sizes for seed in cfg.seeds)
         assert len({r.run_id for r in runs}) == len(runs)
         assert all(r.iterations == fig2.iterations(cfg, r.method) for r in runs)
-        assert all(fig2.iterations(cfg, m) == cfg.iterations for m in cfg.methods if m not in fig2.LONGER)
+        assert all(fig2.iterations(cfg, m) == cfg.iterations for m in cfg.methods if m not in lines.LONGER)
         # seed by seed, small datasets first: the first len(sizes) x len(methods) runs draw the whole figure
         first = runs[:len(cfg.sizes) * len(cfg.methods)]
         assert {r.seed for r in first} == {cfg.seeds[0]} and [r.size for r in first] == sorted(r.size for r in first)
@@ -77,14 +77,13 @@ def test_plan_is_every_method_size_and_seed_smallest_first():
 
 
 def test_the_ablation_lines_are_the_released_details_added_and_removed_one_at_a_time():
-    lines, all_ = fig2.LINES, fig2.LINES["mil-all"]
-    released = lines["mil-released"]
-    for detail, change in fig2.RELEASED.items():
-        added, removed = lines[f"mil-all+{detail}"], lines[f"mil-released-{detail}"]
+    all_, released = lines.LINES["mil-all"], lines.LINES["mil-released"]
+    for detail, change in lines.RELEASED.items():
+        added, removed = lines.LINES[f"mil-all+{detail}"], lines.LINES[f"mil-released-{detail}"]
         assert {f.name for f in dataclasses.fields(all_) if getattr(added, f.name) != getattr(all_, f.name)} == set(change)
         assert {f.name for f in dataclasses.fields(released)
                 if getattr(removed, f.name) != getattr(released, f.name)} == set(change)
-    net = fig2.methods.of(lines["mil-released+widths"]).network_config(32)
+    net = fig2.methods.of(lines.LINES["mil-released+widths"]).network_config(32)
     assert (net.channels, net.hidden, net.init, net.layer_norm) == ((30, 30, 30), (200, 200), "released", True)
     assert released.init == "released" and fig2.PROFILES_TRAIN["released"].init == "released"
 
@@ -252,7 +251,7 @@ def test_summarise_pools_seeds():
 def test_plot_writes_a_png(tmp_path):
     pytest.importorskip("matplotlib")
     rows = run_sweep(tmp_path)
-    plot(summarise(rows), tmp_path / "fig2.png", fig2.LABELS)
+    plot(summarise(rows), tmp_path / "fig2.png", lines.LABELS)
     assert (tmp_path / "fig2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not glob.glob(str(tmp_path / ".tmp-*"))               # atomic: no temporary file left
 
@@ -424,8 +423,8 @@ def test_a_longer_line_continues_its_shorter_runs_checkpoint_and_equals_a_run_fr
     """A LONGER line's run starts from the shorter line's finished run (same size and seed) when it
     exists: the same numbers, log and notes as training it from scratch, and it says what it continued;
     a shorter run killed half way, or trained with another config, is not continued."""
-    monkeypatch.setitem(fig2.LONGER, "long", ("mil-conv0", 4))
-    monkeypatch.setitem(fig2.LINES, "long", fig2.LINES["mil-conv0"])
+    monkeypatch.setitem(lines.LONGER, "long", ("mil-conv0", 4))
+    monkeypatch.setitem(lines.LINES, "long", lines.LINES["mil-conv0"])
     every = fig2.run_config
     monkeypatch.setattr(fig2, "run_config", lambda spec, context: dataclasses.replace(
         every(spec, context), log_every=1, eval_every=1, eval_trials=1))        # a log line per iteration
@@ -458,17 +457,17 @@ def test_a_longer_line_continues_its_shorter_runs_checkpoint_and_equals_a_run_fr
     assert fig2._continue_shorter(long, str(tmp_path / "w3" / long.run_id), context)        # the same, as trained
     assert not os.path.exists(tmp_path / "k" / long.run_id)
     assert fig2._continue_shorter(long, str(tmp_path / "w2" / long.run_id), context) is False   # no shorter run there
-    monkeypatch.setitem(fig2.LINES, "long", dataclasses.replace(fig2.LINES["mil-conv0"], lr_schedule="cosine"))
-    monkeypatch.setitem(fig2.LINES, "mil-conv0", fig2.LINES["long"])
+    monkeypatch.setitem(lines.LINES, "long", dataclasses.replace(lines.LINES["mil-conv0"], lr_schedule="cosine"))
+    monkeypatch.setitem(lines.LINES, "mil-conv0", lines.LINES["long"])
     with pytest.raises(ValueError, match="long continues mil-conv0 to 4 iterations: .* a constant step size"):
         dataclasses.replace(TINY, methods=("mil-conv0", "long"))
 
 
 def test_final_meta_loss_is_the_median_of_the_last_iterations_logged(tmp_path):
     log = tmp_path / "log.jsonl"
-    lines = [{"iteration": i, "meta_loss": float(i), "seconds": 1.0} for i in range(50, 1001, 50)]
-    lines.insert(5, {"iteration": 300, "validation_success": 0.5, "trials": 4})
-    log.write_text("".join(json.dumps(r) + "\n" for r in lines))
+    records = [{"iteration": i, "meta_loss": float(i), "seconds": 1.0} for i in range(50, 1001, 50)]
+    records.insert(5, {"iteration": 300, "validation_success": 0.5, "trials": 4})
+    log.write_text("".join(json.dumps(r) + "\n" for r in records))
     assert fig2.final_meta_loss(log) == 775.0                 # iterations 550..1000
     assert fig2.final_meta_loss(log, last=100) == 975.0       # 950 and 1000
     log.write_text(json.dumps({"iteration": 0, "fit_on_validation_colours": {}}) + "\n")

@@ -29,7 +29,7 @@ from nbclient.exceptions import CellExecutionError
 
 import oneshot
 from oneshot import demo, methods
-from oneshot.experiments import fig2
+from oneshot.experiments import fig2, lines
 from oneshot.world import palette
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
@@ -218,7 +218,7 @@ def test_experiments(fig2_results, tmp_path):
     assert v["sizes"] == sorted({size for _, size in points})
     # Section 3: adapted vs unadapted, for exactly the MIL methods; the adapted counts, pooled from the
     # rows, are the summary's; the unadapted ones are counts of the same trials.
-    mil = {m for m in summary["methods"] if methods.of(fig2.LINES[m]).adapts}
+    mil = {m for m in summary["methods"] if methods.of(lines.LINES[m]).adapts}
     assert set(v["adaptation"]) == mil
     for method, by_size in v["adaptation"].items():
         assert sorted(map(int, by_size)) == sorted(p["size"] for p in summary["methods"][method])
@@ -251,11 +251,11 @@ def test_experiments(fig2_results, tmp_path):
         assert v["search_table"] is None
     # Section 7: every method of the figure ran; the trained ones' losses are finite and the fixed probe
     # meta-batch's loss fell; one trial per held-out colour (2).
-    assert list(v["live"]) == list(fig2.FIGURE)
+    assert list(v["live"]) == list(lines.FIGURE)
     for method, r in v["live"].items():
         assert r["trials"] == 2 and 0 <= r["successes"] <= r["trials"]
         if "std" in r:
-            assert r["std"] in fig2.LINES[method].random_stds
+            assert r["std"] in lines.LINES[method].random_stds
         else:
             assert len(r["history"]) == v["ITERATIONS"] and np.all(np.isfinite(r["history"]))
             assert np.isfinite(r["probe_before"]) and r["probe_after"] < r["probe_before"], method
@@ -264,7 +264,7 @@ def test_experiments(fig2_results, tmp_path):
 def test_experiments_notebook_runs_without_matplotlib(fig2_results, tmp_path):
     nb, v = execute(with_results(fig2_results), "04_experiments.ipynb", tmp_path, first=WITHOUT_PLOTS,
                     values=EXPERIMENT_VALUES)
-    assert v["plt_is_none"] and len(v["live"]) == len(fig2.FIGURE)
+    assert v["plt_is_none"] and len(v["live"]) == len(lines.FIGURE)
     assert "install matplotlib to see the figure" in stdout(*nb.cells)
 
 

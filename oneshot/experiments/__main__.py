@@ -25,7 +25,7 @@ committed ones of a clone) are run again, never counted as done.
 A sweep takes any `concurrent.futures.Executor` (a process pool by default; Dask's
 `Client.get_executor()`), so the function that performs one run, `run_fn(spec, run_dir, context)`, must
 be a module-level function (it is pickled) and write only inside its `run_dir` (Figure 2's `run_one`
-also reads a sibling folder: the run a longer line continues, `fig2.LONGER`).
+also reads a sibling folder: the run a longer line continues, `lines.LONGER`).
 """
 import argparse
 import contextlib
@@ -36,7 +36,8 @@ import shlex
 import signal
 import sys
 
-from oneshot.experiments.fig2 import LABELS, LINES, PROFILES, ensure_data, load_results, plan, run_context, run_one
+from oneshot.experiments.fig2 import PROFILES, ensure_data, load_results, plan, run_context, run_one
+from oneshot.experiments.lines import LABELS, LINES
 from oneshot import methods
 from oneshot.experiments.rows import read_rows
 from oneshot.experiments.summary import PLOTS, compare, plot, pool_evaluations, summarise, write_summary

@@ -1,9 +1,10 @@
 """Figure 2 of the paper (Section IV): one-shot success against the size of the meta-training dataset,
-one line per method. A *run* is one line (a method and its configuration, `LINES`) trained on one
-dataset size (colours x demos per colour) with one seed, then scored on the same trials of the scored
-split (the test colours for a figure, the validation colours for a search or an ablation). A profile
-(`SweepConfig`, `PROFILES`) names the sizes, lines and seeds; `run_one` does one run; the command is
-`python -m oneshot.experiments fig2` (`oneshot/experiments/__main__.py`), the machinery `sweep`.
+one line per method. A *run* is one line (a method and its configuration: `oneshot.experiments.lines`)
+trained on one dataset size (colours x demos per colour) with one seed, then scored on the same trials
+of the scored split (the test colours for a figure, the validation colours for a search or an
+ablation). A profile (`SweepConfig`, `PROFILES`) names the sizes, lines and seeds; `run_one` does one
+run; the command is `python -m oneshot.experiments fig2` (`oneshot/experiments/__main__.py`), the
+machinery `sweep`.
 """
 import dataclasses
 import json
@@ -24,6 +25,7 @@ from oneshot.world import palette
 from oneshot.training.config import PROFILES as PROFILES_TRAIN
 from oneshot.expert.controller import ExpertConfig
 from oneshot.world.palette import PaletteConfig
+from oneshot.experiments.lines import ABLATION, FIGURE, LINES, LONGER, SEARCH
 from oneshot.experiments.rows import RunSpec, read_rows
 from oneshot.world.reach import WorldConfig
 
@@ -35,69 +37,7 @@ def load_results(folder):
         return read_rows(os.path.join(folder, "runs.csv")), files.loads_json(f.read())
 
 
-def _default(**changes):
-    return dataclasses.replace(PROFILES_TRAIN["default"], **changes)
-
-
-# The lines of the figure and the variants of the hyperparameter search (`--profile search`), each a
-# method (`oneshot.methods`) with its training configuration. All share the default profile's recipe
-# (feature points, bias transformation, Adam 3e-3, clipping, moving average 0.999, meta-batch 5); they
-# differ in how one demonstration enters, and MIL's variants in what eq. (1) adapts:
-#   mil-conv0  the default profile: one inner step of 0.3 on the first convolution
-#   mil-all    every parameter adapts (the paper's inner loop), one step of 0.25: MIL's released code
-#              scores eq. (2) as mean((100 (u - u_hat))^2), 10^4 times the mean squared error, with a
-#              nominal step of 0.001, i.e. a step of 10 on the mean squared error; our eq. (2) is a sum
-#              over 20 frames x 2 torques (40 times the mean), so that step is alpha = 10 / 40 = 0.25
-LINES = {
-    "mil-conv0": _default(),
-    "mil-all": _default(inner_params="all", alpha=0.25),
-    "contextual": _default(method="contextual"),
-    "lstm": _default(method="lstm"),
-    "random": _default(method="random"),
-    "mil-all-a0.05": _default(inner_params="all", alpha=0.05),
-    "mil-all-a0.01": _default(inner_params="all", alpha=0.01),
-    "contextual-lr1e-3": _default(method="contextual", lr=1e-3),
-    "lstm-lr1e-3": _default(method="lstm", lr=1e-3),
-    "lstm-512": _default(method="lstm", lstm_units=512),
-    "lstm-2048": _default(method="lstm", lstm_units=2048),   # the workshop paper's width (`--profile lstm-2048`)
-}
-# MIL's released code (tianheyu927/mil) in its inner loop and network, detail by detail, as changes to
-# mil-all (`--profile released` is all of them on the released training settings):
-RELEASED = {
-    "clip": dict(alpha=0.001, inner_loss_scale=250.0, inner_clip=20.0),  # its loss convention, gradient clip 20
-    "ln": dict(layer_norm=True, never_adapt=("ln",)),                    # layer norm, offsets never adapted
-    "flat": dict(feature_points=False),                                  # conv output flattened (--fp=False)
-    "mb25": dict(meta_batch=25),                                         # meta-batch 25
-    "adam": dict(lr=1e-3, clip=0.0),                                     # Adam 1e-3, no outer clip
-    "init": dict(init="released"),                                       # --init=xavier; dense N(0, 0.01^2)
-}
-_ALL = {k: v for change in RELEASED.values() for k, v in change.items()}
-# The ablation (issue 29): from mil-all add each detail; from all of them remove each; and 3 inner steps.
-LINES.update({f"mil-all+{d}": dataclasses.replace(LINES["mil-all"], **change) for d, change in RELEASED.items()})
-LINES["mil-released"] = dataclasses.replace(LINES["mil-all"], **_ALL)
-LINES.update({f"mil-released-{d}": dataclasses.replace(LINES["mil-released"], **{k: getattr(LINES["mil-all"], k)
-                                                                                for k in change})
-              for d, change in RELEASED.items()})
-LINES["mil-released+3steps"] = dataclasses.replace(LINES["mil-released"], inner_steps=3)
-# The released sim_vision_reach widths (--num_filters=30, --num_fc_layers=3 --layer_size=200: two hidden
-# layers of 200 and the output) in place of the seed paper's 3 x 40 and 4 x 100.
-LINES["mil-released+widths"] = dataclasses.replace(LINES["mil-released"], channels=(30, 30, 30), hidden=(200, 200))
-# Lines trained longer than their profile's iterations: {line: (the line it continues, its iterations)}.
-# Its run starts from the shorter line's finished run of the same size and seed when that exists (the
-# checkpoint holds parameters, Adam, moving average and sampling state, and the step size is constant,
-# so this is the same run as one trained from scratch: `run_one`); the released code trains 30,000.
-LONGER = {"mil-released-30k": ("mil-released", 30000)}
 CONTINUED = "CONTINUED"   # in a LONGER run's folder: the run id it continued (`_continue_shorter`)
-LINES.update({line: LINES[shorter] for line, (shorter, _) in LONGER.items()})
-# The longer line last: by the time a worker reaches it, the run it continues has finished.
-ABLATION = ("mil-all", *(f"mil-all+{d}" for d in RELEASED), "mil-released", *(f"mil-released-{d}" for d in RELEASED),
-            "mil-released+3steps", "mil-released+widths", "mil-released-30k")
-FIGURE = ("mil-conv0", "mil-all", "contextual", "lstm", "random")      # the lines of the figure
-SEARCH = ("mil-conv0", "mil-all", "contextual", "lstm", "mil-all-a0.05", "mil-all-a0.01", "contextual-lr1e-3",
-          "lstm-lr1e-3", "lstm-512")                                  # the hyperparameter search's variants
-
-LABELS = {"mil-conv0": "MIL, first convolution adapts", "mil-all": "MIL, every parameter adapts (step 0.25)",
-          "contextual": "contextual policy", "lstm": "LSTM", "random": "random policy"}
 
 
 @dataclass(frozen=True)

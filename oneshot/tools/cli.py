@@ -61,22 +61,18 @@ def finite_non_negative_float(text):
     return value
 
 
-def finite_non_negative_floats(text):
-    """An argparse type: comma-separated finite numbers >= 0, e.g. "0.1,0.5,1" -> (0.1, 0.5, 1.0)."""
-    try:
-        return tuple(finite_non_negative_float(x) for x in text.split(","))
-    except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated finite numbers >= 0, e.g. 0.1,0.5,1; "
-                                         f"got {text!r}") from None
+def _comma_separated(item, what, example):
+    """An argparse type: comma-separated values of the argparse type `item`, as a tuple."""
+    def parse(text):
+        try:
+            return tuple(item(x) for x in text.split(","))
+        except argparse.ArgumentTypeError:
+            raise argparse.ArgumentTypeError(f"expected comma-separated {what}, e.g. {example}; got {text!r}") from None
+    return parse
 
 
-def positive_ints(text):
-    """An argparse type: comma-separated whole numbers >= 1, e.g. "200,200" -> (200, 200)."""
-    try:
-        return tuple(positive_int(x) for x in text.split(","))
-    except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated whole numbers >= 1, e.g. 200,200; "
-                                         f"got {text!r}") from None
+finite_non_negative_floats = _comma_separated(finite_non_negative_float, "finite numbers >= 0", "0.1,0.5,1")
+positive_ints = _comma_separated(positive_int, "whole numbers >= 1", "200,200")      # layer widths
 
 
 TRUE, FALSE = ("true", "1", "yes"), ("false", "0", "no")
