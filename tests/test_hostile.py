@@ -109,7 +109,9 @@ def test_train_refuses_counts_of_zero(capsys, tmp_path, flag):
 @pytest.mark.parametrize("flag, value, says", [
     ("--hidden", "200,0", "argument --hidden: expected comma-separated whole numbers >= 1, e.g. 200,200; got '200,0'"),
     ("--channels", "30,x", "argument --channels: expected comma-separated whole numbers >= 1"),
-    ("--init", "xavier", "argument --init: invalid choice: 'xavier'")])
+    ("--init", "xavier", "argument --init: invalid choice: 'xavier'"),
+    ("--random-stds", "0.1,-1", "argument --random-stds: expected comma-separated finite numbers >= 0, e.g. "
+                                "0.1,0.5,1; got '0.1,-1'")])
 def test_train_refuses_bad_widths_and_inits_naming_the_flag(capsys, tmp_path, flag, value, says):
     line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), flag, value])
     assert says in line
