@@ -30,6 +30,7 @@ from nbclient.exceptions import CellExecutionError
 import oneshot
 from oneshot import demo, methods
 from oneshot.experiments import fig2, lines
+from oneshot.experiments.rows import read_rows
 from oneshot.world import palette
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
@@ -203,7 +204,8 @@ def with_results(results):
 EXPERIMENT_VALUES = """{
     "results": RESULTS, "profile": PROFILE, "methods": ORDER, "sizes": SIZES, "rows": len(rows),
     "adaptation": adaptation, "inner_loops": [[size, a["successes"], b["successes"]] for size, a, b in inner_loops],
-    "per_colour": per_colour, "search_table": search_table, "live": live, "ITERATIONS": ITERATIONS,
+    "per_colour": per_colour, "search_table": search_table, "ablation_table": ablation_table, "live": live,
+    "ITERATIONS": ITERATIONS,
     "plt_is_none": plt is None}"""
 
 
@@ -249,6 +251,13 @@ def test_experiments(fig2_results, tmp_path):
         assert len(v["search_table"]) == sum(len(ps) for ps in variants.values())
     else:
         assert v["search_table"] is None
+    # Section 4's ablation: every committed row, in the ablation's order, with its own counts.
+    ablation = fig2_results / "fig2_ablation" / "runs.csv"
+    expected = [[r["method"], r["seed"], r["successes"], r["trials"], json.loads(r["notes"])["unadapted_successes"]]
+                for r in (read_rows(ablation) if ablation.exists() else [])]
+    assert sorted(map(list, v["ablation_table"])) == sorted(expected)
+    order = [lines.ABLATION.index(line) for line, *_ in v["ablation_table"]]
+    assert order == sorted(order) and (len(expected) > 0) == ablation.exists()
     # Section 7: every method of the figure ran; the trained ones' losses are finite and the fixed probe
     # meta-batch's loss fell; one trial per held-out colour (2).
     assert list(v["live"]) == list(lines.FIGURE)
