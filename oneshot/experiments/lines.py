@@ -58,7 +58,8 @@ LINES["mil-released+widths"] = dataclasses.replace(LINES["mil-released"], channe
 # Lines trained longer than their profile's iterations: {line: (the line it continues, its iterations)}.
 # Its run starts from the shorter line's finished run of the same size and seed when that exists (the
 # checkpoint holds parameters, Adam, moving average and sampling state, and the step size is constant,
-# so this is the same run as one trained from scratch: `run_one`); the released code trains 30,000.
+# so this is the same run as one trained from scratch: `fig2._continue_shorter`); the released code
+# trains 30,000.
 LONGER = {"mil-released-30k": ("mil-released", 30000)}
 LINES.update({line: LINES[shorter] for line, (shorter, _) in LONGER.items()})
 # The longer line last: by the time a worker reaches it, the run it continues has finished.

@@ -37,7 +37,7 @@ class Method:
         """The NetworkConfig of its policy for images of `image_size` pixels (stored in checkpoints)."""
         return NetworkConfig(image_size=image_size, bias_transform=self.cfg.bias_transform,
                              feature_points=self.cfg.feature_points, layer_norm=self.cfg.layer_norm,
-                             init=self.cfg.init, channels=tuple(self.cfg.channels), hidden=tuple(self.cfg.hidden))
+                             init=self.cfg.init, channels=self.cfg.channels, hidden=self.cfg.hidden)
 
     def init_params(self, net_cfg, rng):
         """Initial parameters: a dict of float32 arrays. rng: np.random.Generator."""
