@@ -11,6 +11,7 @@ import shutil
 import numpy as np
 import pytest
 
+from oneshot import evaluate
 from oneshot.experiments import __main__ as command, fig2, lines
 from oneshot.experiments import sweep as sweeping
 from oneshot.training.scoring import wilson_interval
@@ -396,6 +397,25 @@ def test_real_runs_resume_and_give_the_same_rows_in_threads_and_processes(tmp_pa
     again = sweep(runs, tmp_path / "p" / "results", tmp_path / "p" / "work", context, fig2.run_one,
                   progress=False)
     assert again == processes and [os.path.getmtime(c) for c in checkpoints] == stamps
+
+
+def test_a_run_with_a_moving_average_also_scores_its_raw_parameters_as_evaluate_does(tmp_path):
+    """notes["raw"]: the parameters Adam trained, scored on the same trials as the row (what a run without
+    the moving average would score); the same counts and eq. (2) as `python -m oneshot.evaluate --raw`."""
+    spec = next(r for r in plan(TINY) if r.seed == 0 and r.method == "mil-conv0" and r.size == 9)
+    assert lines.LINES[spec.method].ema > 0
+    fig2.ensure_data(TINY, tmp_path / "data", workers=1, progress=False)
+    context = run_context(TINY, tmp_path / "data")
+    notes = fig2.run_one(spec, str(tmp_path / "run"), context)
+    raw = notes["raw"]
+    evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--raw", "--split", TINY.score, "--trials", str(TINY.trials),
+                   "--train", "", "--unadapted", "--json", str(tmp_path / "raw.json")])
+    scored = json.loads((tmp_path / "raw.json").read_text())
+    assert (raw["successes"], raw["unadapted_successes"]) == (scored[TINY.score]["successes"],
+                                                              scored[f"{TINY.score}_unadapted"]["successes"])
+    assert [raw["eq2_before"], raw["eq2_after"]] == [round(scored["adaptation_gain"][k], 4) for k in ("before", "after")]
+    assert raw["eq2_before"] != notes["eq2_before"]                         # not the moving average's
+    assert set(raw) == {"successes", "unadapted_successes", "eq2_before", "eq2_after"}
 
 
 def test_a_resumed_run_counts_the_training_time_of_its_killed_sittings(tmp_path):

@@ -209,12 +209,29 @@ def _continue_shorter(spec, run_dir, context):
     return True
 
 
+def _score(method, params, scored, spec, context):
+    """One policy scored as a run is: (one_shot_success's result, notes: successes per colour and, for
+    MIL, the unadapted policy's successes in the same scenes and eq. (2) on a second demo before and
+    after adapting)."""
+    score = lambda condition: imitation.one_shot_success(condition, scored, context["trials"], context["eval_seed"],
+                                                         progress=False)
+    r = score(method.conditioner(params, seed=[spec.seed, context["eval_seed"]]))
+    notes = {"per_colour": {str(c): round(rate * context["trials"]) for c, rate in r["per_colour"].items()}}
+    if method.adapts:                                                # the same scenes, without eq. (1)
+        notes["unadapted_successes"] = score(method.unadapted(params))["successes"]
+        gain = scoring.adaptation_gain(params, scored, method.conditioner(params))   # eq. (2) on a second demo
+        notes.update(eq2_before=round(gain["before"], 4), eq2_after=round(gain["after"], 4))
+    return r, notes
+
+
 def run_one(spec, run_dir, context):
     """Train (or resume) one run in run_dir and score it on context["trials"] trials per colour of the
     scored split (`imitation.one_shot_success` with the sweep's eval seed: the same scenes for every run).
     Returns {"wall_seconds", "successes", "trials"} and, for the `notes` column, the successes per scored
-    colour, for MIL the unadapted policy's successes in the same scenes, the training loss at the end
-    (`final_meta_loss`, when the log records one), and what the method records of
+    colour, for MIL the unadapted policy's successes in the same scenes and eq. (2) before and after
+    adapting, and the same for the raw parameters when the policy acts with a moving average ("raw":
+    what a run without one would score, since the average never feeds back into training), the
+    training loss at the end (`final_meta_loss`, when the log records one), and what the method records of
     itself (the random policy: the torque std it chose on the validation colours; its torques are drawn
     from the run's own seed). wall_seconds: the meta-training time the checkpoint records (every sitting,
     a killed one too) plus the scoring; for a run begun before checkpoints recorded time, only this
@@ -230,14 +247,10 @@ def run_one(spec, run_dir, context):
     scored = run_data.load(cfg, context["score"])
     params = checkpoint.policy_params(ckpt)
     method = methods.of(cfg)
-    score = lambda condition: imitation.one_shot_success(condition, scored, context["trials"], context["eval_seed"],
-                                                         progress=False)
-    r = score(method.conditioner(params, seed=[spec.seed, context["eval_seed"]]))
-    notes = {"per_colour": {str(c): round(rate * context["trials"]) for c, rate in r["per_colour"].items()}}
-    if method.adapts:                                                # the same scenes, without eq. (1)
-        notes["unadapted_successes"] = score(method.unadapted(params))["successes"]
-        gain = scoring.adaptation_gain(params, scored, method.conditioner(params))   # eq. (2) on a second demo
-        notes.update(eq2_before=round(gain["before"], 4), eq2_after=round(gain["after"], 4))
+    r, notes = _score(method, params, scored, spec, context)
+    if method.adapts and ckpt["ema"] is not None:      # the parameters Adam trained, without the moving average
+        raw, raw_notes = _score(method, checkpoint.policy_params(ckpt, raw=True), scored, spec, context)
+        notes["raw"] = {"successes": raw["successes"], **{k: v for k, v in raw_notes.items() if k != "per_colour"}}
     notes.update(method.notes(params))
     if os.path.exists(os.path.join(run_dir, CONTINUED)):          # its first iterations are another run's
         with files.open_read(os.path.join(run_dir, CONTINUED), "r") as f:
