@@ -85,6 +85,8 @@ def main(argv=None):
             raise datasets.DatasetError(f"{path} holds {dataset['metadata']['split']} colours, not {split} colours; "
                                         f"name the {split} dataset with {FLAGS[split]}")
         fit_check.check_data(ckpt, dataset["metadata"], args.checkpoint, path, palette=not args.any_palette)
+    if "train" in loaded:                    # the contrast: the colours and demos the run meta-trained on, no more
+        loaded["train"] = run_data.subset(loaded["train"], cfg.tasks, cfg.demos)
     results = {}
     for split, dataset in loaded.items():
         condition = method.conditioner(params, seed=args.seed)

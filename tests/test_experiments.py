@@ -78,12 +78,18 @@ def test_plan_is_every_method_size_and_seed_smallest_first():
 
 
 def test_the_ablation_lines_are_the_released_details_added_and_removed_one_at_a_time():
-    all_, released = lines.LINES["mil-all"], lines.LINES["mil-released"]
+    all_, released, full = (lines.LINES[n] for n in ("mil-all", "mil-released", "mil-released+widths"))
+    differ = lambda a, b: {f.name for f in dataclasses.fields(a) if getattr(a, f.name) != getattr(b, f.name)}
     for detail, change in lines.RELEASED.items():
-        added, removed = lines.LINES[f"mil-all+{detail}"], lines.LINES[f"mil-released-{detail}"]
-        assert {f.name for f in dataclasses.fields(all_) if getattr(added, f.name) != getattr(all_, f.name)} == set(change)
-        assert {f.name for f in dataclasses.fields(released)
-                if getattr(removed, f.name) != getattr(released, f.name)} == set(change)
+        assert differ(lines.LINES[f"mil-all+{detail}"], all_) == set(change)
+        assert differ(lines.LINES[f"mil-released-{detail}"], released) == set(change)
+        assert differ(lines.LINES[f"mil-released+widths-{detail}"], full) == set(change)
+        assert f"mil-all+{detail}" in lines.ABLATION and f"mil-released+widths-{detail}" in lines.ABLATION
+    assert differ(full, released) == {"channels", "hidden"} and differ(released, all_) == set(lines._ALL)
+    assert differ(lines.LINES["mil-released+widths+3steps"], full) == {"inner_steps"}
+    # every committed row's line is still in the ablation (the notebook orders them by it)
+    committed = os.path.join(os.path.dirname(__file__), "..", "results", "fig2_ablation", "runs.csv")
+    assert {r["method"] for r in sweep_rows.read_rows(committed)} <= set(lines.ABLATION)
     net = fig2.methods.of(lines.LINES["mil-released+widths"]).network_config(32)
     assert (net.channels, net.hidden, net.init, net.layer_norm) == ((30, 30, 30), (200, 200), "released", True)
     assert released.init == "released" and fig2.PROFILES_TRAIN["released"].init == "released"

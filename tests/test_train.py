@@ -274,6 +274,17 @@ def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, caps
     assert not world_seeds & set(heldout["seeds"].ravel().tolist())
 
 
+def test_evaluate_contrasts_only_the_colours_the_run_meta_trained_on(tiny, tmp_path):
+    # a run on the first 2 of the dataset's 3 training colours (as a Figure 2 run on part of the data):
+    # the contrast scores those 2 colours, not the third, which the run never saw
+    run_folder.train(dataclasses.replace(tiny, iterations=2, tasks=2, demos=2), tmp_path / "run", progress=False)
+    colours = datasets.load(tiny.train_data)["task_colours"].tolist()
+    assert len(colours) == 3
+    train = evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--validation", tiny.validation_data,
+                           "--trials", "2"])["train"]
+    assert train["trials"] == 2 * 2 and sorted(train["per_colour"]) == sorted(colours[:2])
+
+
 def test_evaluate_command_can_meta_test_with_another_step_size(tiny, tmp_path, capsys):
     # alpha 0 leaves the policy as it is, so its "adapted" trials are the unadapted ones, scene by scene.
     run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
