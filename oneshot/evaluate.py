@@ -38,6 +38,9 @@ def main(argv=None):
     p.add_argument("--trials", type=cli.positive_int, default=10,
                    help="trials per colour (default 10: 120 trials on the 12 validation colours)")
     p.add_argument("--seed", type=cli.non_negative_int, default=0, help="seed of the trial scenes")
+    p.add_argument("--demo-scenes", action="store_true",
+                   help="act in the recorded scenes of the demonstrations (trial j adapts on demo j, acts in demo "
+                        "j + 1's scene), not in new ones: has the policy memorised its meta-training scenes?")
     p.add_argument("--unadapted", action="store_true",
                    help="also run the policy without adaptation on the held-out colours (does adapting help?)")
     p.add_argument("--raw", action="store_true",
@@ -90,7 +93,7 @@ def main(argv=None):
     results = {}
     for split, dataset in loaded.items():
         condition = method.conditioner(params, seed=args.seed)
-        r = imitation.one_shot_success(condition, dataset, args.trials, args.seed)
+        r = imitation.one_shot_success(condition, dataset, args.trials, args.seed, demo_scenes=args.demo_scenes)
         r["ci95"] = lo, hi = wilson_interval(r["successes"], r["trials"])
         print(f"{split} colours: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
               f"95% CI [{lo:.3f}, {hi:.3f}]; failures: {r['failures']['near_miss']} near misses (closest "
@@ -105,7 +108,8 @@ def main(argv=None):
                   f"one demo, {g['after']:.3f} after ({g['pairs']} pairs)")
             results["adaptation_gain"] = g
         if args.unadapted:
-            u = imitation.one_shot_success(method.unadapted(params), dataset, args.trials, args.seed)
+            u = imitation.one_shot_success(method.unadapted(params), dataset, args.trials, args.seed,
+                                           demo_scenes=args.demo_scenes)
             u["ci95"] = lo, hi = wilson_interval(u["successes"], u["trials"])
             print(f"{split} colours, unadapted policy: success {u['rate']:.3f} ({u['successes']}/{u['trials']}), "
                   f"95% CI [{lo:.3f}, {hi:.3f}]")
@@ -114,11 +118,13 @@ def main(argv=None):
         written = {k: dict(v, per_colour={str(c): x for c, x in v["per_colour"].items()})
                    if "per_colour" in v else v for k, v in results.items()}
         # what `python -m oneshot.experiments seeds` pools: one recipe (the config but its seed and data
-        # paths, with this command's --alpha and --inner-steps, and --raw), scored on one dataset and scenes
+        # paths, with this command's --alpha and --inner-steps, --raw and --demo-scenes), scored on one
+        # dataset and scenes
         recipe = {k: v for k, v in dataclasses.asdict(cfg).items() if k != "seed" and not k.endswith("_data")}
         written["policy"] = {"checkpoint": args.checkpoint, "training_seed": cfg.seed, "method": cfg.method,
-                             "recipe": dict(recipe, raw=args.raw), "dataset": run_data.spec(cfg, args.split)[0],
-                             "trials_per_colour": args.trials, "eval_seed": args.seed}
+                             "recipe": dict(recipe, raw=args.raw, **({"demo_scenes": True} if args.demo_scenes else {})),
+                             "dataset": run_data.spec(cfg, args.split)[0], "trials_per_colour": args.trials,
+                             "eval_seed": args.seed}
         with files.atomic_write(args.json) as f:             # never half a file
             f.write(json.dumps(written, indent=1).encode())
     return results

@@ -204,7 +204,7 @@ def with_results(results):
 EXPERIMENT_VALUES = """{
     "results": RESULTS, "profile": PROFILE, "methods": ORDER, "sizes": SIZES, "rows": len(rows),
     "adaptation": adaptation, "inner_loops": [[size, a["successes"], b["successes"]] for size, a, b in inner_loops],
-    "per_colour": per_colour, "search_table": search_table, "ablation_table": ablation_table, "live": live,
+    "per_colour": per_colour, "search_table": search_table, "ablation_table": ablation_table, "scenes_table": scenes_table, "live": live,
     "ITERATIONS": ITERATIONS,
     "plt_is_none": plt is None}"""
 
@@ -258,6 +258,16 @@ def test_experiments(fig2_results, tmp_path):
     assert sorted(map(list, v["ablation_table"])) == sorted(expected)
     order = [lines.ABLATION.index(line) for line, *_ in v["ablation_table"]]
     assert order == sorted(order) and (len(expected) > 0) == ablation.exists()
+    # ... and every committed scene check, its counts as its two files hold them.
+    scenes = fig2_results / "fig2_ablation" / "scenes"
+    expected = []
+    for demo_file in sorted(scenes.glob("*_demo_scenes.json")):
+        name = demo_file.name[:-len("_demo_scenes.json")]
+        demo, new = json.loads(demo_file.read_text()), json.loads((scenes / f"{name}_new_scenes.json").read_text())
+        assert demo["policy"]["recipe"].get("demo_scenes") and not new["policy"]["recipe"].get("demo_scenes")
+        expected.append([name, demo["train"]["successes"], new["train"]["successes"],
+                         demo["validation"]["successes"], new["validation"]["successes"]])
+    assert list(map(list, v["scenes_table"])) == sorted(expected)
     # Section 7: every method of the figure ran; the trained ones' losses are finite and the fixed probe
     # meta-batch's loss fell; one trial per held-out colour (2).
     assert list(v["live"]) == list(lines.FIGURE)

@@ -285,6 +285,31 @@ def test_evaluate_contrasts_only_the_colours_the_run_meta_trained_on(tiny, tmp_p
     assert train["trials"] == 2 * 2 and sorted(train["per_colour"]) == sorted(colours[:2])
 
 
+def test_evaluate_can_act_in_the_scenes_of_the_demonstrations(tiny, tmp_path, monkeypatch):
+    # --demo-scenes: trial j adapts on demo j and acts in the recorded scene of demo j + 1 (mod K): the
+    # same target, distractors and positions as that demonstration; without it, no recorded scene
+    run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
+    played, rollout = [], imitation.rollout
+    monkeypatch.setattr(imitation, "rollout", lambda *a, **k: played.append(rollout(*a, **k)) or played[-1])
+    ckpt = str(tmp_path / "run" / "checkpoint.npz")
+    results = evaluate.main([ckpt, "--validation", tiny.validation_data, "--trials", "3", "--demo-scenes",
+                             "--json", str(tmp_path / "e.json")])
+    train, heldout = datasets.load(tiny.train_data), datasets.load(tiny.validation_data)
+    expected = [(d, i, (j + 1) % d["seeds"].shape[1]) for d in (heldout, train)
+                for i in range(d["seeds"].shape[0]) for j in range(3)]
+    assert len(played) == len(expected) == results["validation"]["trials"] + results["train"]["trials"]
+    for trial, (d, i, k) in zip(played, expected):
+        assert trial["scene"].target == d["target_index"][i, k]
+        np.testing.assert_allclose(trial["scene"].positions, d["positions"][i, k], atol=1e-6)
+        assert list(trial["scene"].colours) == list(d["colours"][i, k])
+    with open(tmp_path / "e.json") as f:
+        assert json.load(f)["policy"]["recipe"]["demo_scenes"] is True
+    played.clear()
+    evaluate.main([ckpt, "--validation", tiny.validation_data, "--trials", "3", "--train", ""])
+    recorded = {tuple(np.round(p, 6).ravel()) for p in heldout["positions"].reshape(-1, *heldout["positions"].shape[2:])}
+    assert played and not {tuple(np.round(t["scene"].positions, 6).ravel()) for t in played} & recorded
+
+
 def test_evaluate_command_can_meta_test_with_another_step_size(tiny, tmp_path, capsys):
     # alpha 0 leaves the policy as it is, so its "adapted" trials are the unadapted ones, scene by scene.
     run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)

@@ -140,10 +140,14 @@ def _pair(a, b):
     return (a + b) * (a + b + 1) // 2 + b
 
 
-def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=True):
+def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=True, demo_scenes=False):
     """Meta-test over a dataset (Section III-B, scored as in Section IV): for each task (colour) of
     `dataset`, `trials_per_colour` trials; trial j conditions the policy on demo j % K of that task
     and runs it in a fresh scene of that colour (`trial_seed`).
+
+    demo_scenes: run trial j instead in the recorded scene of the task's demo (j + 1) % K (the same
+    positions, a different demo from the one it adapts on). On meta-training data this asks whether a
+    policy has learnt the task or memorised its training scenes (docs/results.md, section 10).
 
     condition(demo) -> policy: what one demonstration (network units) makes of the policy, e.g.
     `lambda demo: adapt(params, demo, alpha, steps, only=only)` for MIL (eq. 1), `lambda demo: params` for
@@ -156,6 +160,8 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
     world_cfg = world_config(meta)
     world = ReachWorld(world_cfg)
     n, k = dataset["images"].shape[:2]
+    scene_seed = ((lambda i, j: int(dataset["seeds"][i, (j + 1) % k])) if demo_scenes else
+                  (lambda i, j: trial_seed(seed, i, j, meta["split"])))
     k = min(k, trials_per_colour)                     # only these demos are used: convert just them
     demos = prepare_demos(dataset["images"][:, :k], dataset["states"][:, :k], dataset["actions"][:, :k],
                           world_cfg.arm.max_torque)
@@ -168,7 +174,7 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
                 colour, won = int(dataset["task_colours"][i]), 0
                 for j in range(trials_per_colour):
                     policy = condition(tuple(a[i, j % k] for a in demos))
-                    trial = rollout(policy, world, trial_seed(seed, i, j, meta["split"]), colour)
+                    trial = rollout(policy, world, scene_seed(i, j), colour)
                     won += trial["success"]
                     if not trial["success"]:
                         closest, _ = closest_object(trial["end_effector"], trial["scene"].positions)

@@ -93,7 +93,9 @@ PROFILES = {
     # it) for the paper's 30000 iterations; with a bias transformation; with feature points too.
     "literal": dataclasses.replace(_MIL, iterations=30000, eval_every=1000),
     # MIL's released code for simulated reaching (tianheyu927/mil, scripts/run_sim_vision_reach.sh, mil.py,
-    # tf_utils.py) as far as our world allows, on the seed paper's widths (3 conv of 40, 4 dense of 100):
+    # tf_utils.py) as far as our world allows, on its widths (--num_filters=30, --num_fc_layers=3
+    # --layer_size=200: 3 conv of 30, 2 dense of 200; on the seed paper's 3 x 40 and 4 x 100 this set
+    # learnt nothing, docs/results.md section 10):
     # ONE inner step of 0.001 on every parameter of the released loss mean((100 du)^2) (250 x eq. (2) at
     # T = 20), its gradient clipped to [-20, 20] (--clip); layer norm after each convolution, offsets never
     # adapted (--norm=layer_norm); the conv output flattened (--fp=False); a bias transformation of 10
@@ -101,7 +103,7 @@ PROFILES = {
     # meta-batch 25, Adam 1e-3 without outer clipping, 30000 iterations, no moving average.
     "released": dataclasses.replace(_MIL, inner_steps=1, alpha=0.001, inner_loss_scale=250.0, inner_clip=20.0,
                                     layer_norm=True, never_adapt=("ln",), feature_points=False, bias_transform=10,
-                                    init="released",
+                                    init="released", channels=(30, 30, 30), hidden=(200, 200),
                                     meta_batch=25, lr=1e-3, clip=0.0, iterations=30000, eval_every=1000),
     "literal-bias": dataclasses.replace(_MIL, bias_transform=10),
     "literal-points": dataclasses.replace(_MIL, bias_transform=10, feature_points=True),
