@@ -42,7 +42,7 @@ def main(argv=None):
                    help="act in the recorded scenes of the demonstrations (trial j adapts on demo j, acts in demo "
                         "j + 1's scene), not in new ones: has the policy memorised its meta-training scenes?")
     p.add_argument("--unadapted", action="store_true",
-                   help="also run the policy without adaptation on the held-out colours (does adapting help?)")
+                   help="also run the policy without adaptation, in the same scenes (does adapting help?)")
     p.add_argument("--raw", action="store_true",
                    help="act with the parameters Adam trained, not their moving average (runs with --ema)")
     p.add_argument("--alpha", type=cli.finite_non_negative_float, default=None,
@@ -99,6 +99,13 @@ def main(argv=None):
               f"95% CI [{lo:.3f}, {hi:.3f}]; failures: {r['failures']['near_miss']} near misses (closest "
               f"to the target, but not within reach), {r['failures']['wrong_object']} at a distractor")
         results[split] = r
+        if args.unadapted:
+            u = imitation.one_shot_success(method.unadapted(params), dataset, args.trials, args.seed,
+                                           demo_scenes=args.demo_scenes)
+            u["ci95"] = lo, hi = wilson_interval(u["successes"], u["trials"])
+            print(f"{split} colours, unadapted policy: success {u['rate']:.3f} ({u['successes']}/{u['trials']}), "
+                  f"95% CI [{lo:.3f}, {hi:.3f}]")
+            results[f"{split}_unadapted"] = u
         if split == "train":
             continue
         print(f"{split} colours, by colour: {colour_breakdown(r, args.trials, dataset['metadata'])}")
@@ -107,13 +114,6 @@ def main(argv=None):
             print(f"{split} colours: eq. (2) loss on a second demo {g['before']:.3f} before adapting on "
                   f"one demo, {g['after']:.3f} after ({g['pairs']} pairs)")
             results["adaptation_gain"] = g
-        if args.unadapted:
-            u = imitation.one_shot_success(method.unadapted(params), dataset, args.trials, args.seed,
-                                           demo_scenes=args.demo_scenes)
-            u["ci95"] = lo, hi = wilson_interval(u["successes"], u["trials"])
-            print(f"{split} colours, unadapted policy: success {u['rate']:.3f} ({u['successes']}/{u['trials']}), "
-                  f"95% CI [{lo:.3f}, {hi:.3f}]")
-            results[f"{split}_unadapted"] = u
     if args.json:
         written = {k: dict(v, per_colour={str(c): x for c, x in v["per_colour"].items()})
                    if "per_colour" in v else v for k, v in results.items()}

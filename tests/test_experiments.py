@@ -530,3 +530,32 @@ def test_compare_says_which_points_agree_within_their_interval():
     committed = rows([[2, 3, 1], [3, 2, 2], [2, 2, 1]])
     assert [p["agree"] for p in summary.compare(rows([[2, 2, 2], [3, 3, 1], [1, 2, 2]]), committed)] == [True]
     assert [p["agree"] for p in summary.compare(rows([[4, 4, 4], [4, 4, 4], [4, 4, 4]]), committed)] == [False]
+
+
+def test_a_finished_run_ships_as_a_policy_that_scores_what_its_row_says(tmp_path, monkeypatch, capsys):
+    """`ship`: the run's checkpoint, its datasets looked for where `fig2 --data-only` collects them; the
+    shipped file, evaluated there, scores its row's numbers. An unfinished run or another line: exit 2."""
+    monkeypatch.chdir(tmp_path)
+    assert command.main(["fig2", "--profile", "tiny", "--data-only", "--data", "d", "--no-progress"]) == 0
+    assert sorted(os.listdir("d")) == sorted(os.path.basename(p) for p in fig2.data_paths(TINY, "d").values())
+    assert not os.path.exists("runs")                                   # no run was started
+    ship = ["ship", "--profile", "tiny", "--line", "mil-conv0", "--seed", "0", "--work", "w", "--data", "d",
+            "--out", "policy.npz"]
+    for argv, message in ((ship, "holds no finished run; make it with: python -m oneshot.experiments fig2 --profile "
+                                 "tiny --lines mil-conv0 --seeds 0"),
+                          ([*ship[:4], "lstm-9", *ship[5:]], "has no run of line 'lstm-9'")):
+        with pytest.raises(SystemExit) as e:
+            command.main(argv)
+        assert e.value.code == 2 and message in capsys.readouterr().err
+    assert not os.path.exists("policy.npz")
+    spec = max((r for r in plan(TINY) if r.method == "mil-conv0" and r.seed == 0), key=lambda r: r.size)
+    row = sweeping.execute(fig2.run_one, spec, os.path.abspath(os.path.join("w", spec.run_id)), run_context(TINY, "d"))
+    assert command.main(ship) == 0
+    run, shipped = checkpoint.load(os.path.join("w", spec.run_id, "checkpoint.npz")), checkpoint.load("policy.npz")
+    assert all(np.array_equal(run["params"][k], shipped["params"][k]) for k in run["params"])
+    assert shipped["config"].train_data == os.path.join("d", os.path.basename(run["config"].train_data))
+    assert os.path.isabs(run["config"].train_data)
+    assert dataclasses.replace(shipped["config"], train_data="", validation_data="", test_data="") == \
+        dataclasses.replace(run["config"], train_data="", validation_data="", test_data="")
+    scored = evaluate.main(["policy.npz", "--split", TINY.score, "--trials", str(TINY.trials), "--train", ""])
+    assert scored[TINY.score]["successes"] == row["successes"] and scored[TINY.score]["trials"] == row["trials"]

@@ -280,9 +280,13 @@ def test_evaluate_contrasts_only_the_colours_the_run_meta_trained_on(tiny, tmp_p
     run_folder.train(dataclasses.replace(tiny, iterations=2, tasks=2, demos=2), tmp_path / "run", progress=False)
     colours = datasets.load(tiny.train_data)["task_colours"].tolist()
     assert len(colours) == 3
-    train = evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--validation", tiny.validation_data,
-                           "--trials", "2"])["train"]
+    results = evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--validation", tiny.validation_data,
+                             "--trials", "2", "--unadapted"])
+    train = results["train"]
     assert train["trials"] == 2 * 2 and sorted(train["per_colour"]) == sorted(colours[:2])
+    # --unadapted: the policy without its inner step on the same colours (and scenes) too
+    assert sorted(results["train_unadapted"]["per_colour"]) == sorted(colours[:2])
+    assert results["validation_unadapted"]["trials"] == results["validation"]["trials"] == 2 * 2
 
 
 def test_evaluate_can_act_in_the_scenes_of_the_demonstrations(tiny, tmp_path, monkeypatch):

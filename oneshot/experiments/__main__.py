@@ -11,6 +11,8 @@ run scored on the profile's split (`oneshot.experiments.fig2`):
     python -m oneshot.experiments fig2 --profile quick --compare results/fig2_quick   # check a reproduction
     python -m oneshot.experiments summarise results/fig2_paper            # summary and figure from runs.csv
     python -m oneshot.experiments seeds results/default_seeds/seed*_test.json   # one recipe over its seeds
+    python -m oneshot.experiments fig2 --profile ablation --data-only     # its datasets only
+    python -m oneshot.experiments ship --profile ablation --line L --seed 0 --out F.npz   # a run as a policy
 
 It writes `results/fig2_<profile>/` where it runs (or `--out`): runs.csv (one row per finished run),
 summary.json (per line and size: the mean over seeds and its 95% interval over seeds and scored
@@ -40,6 +42,7 @@ from oneshot.experiments.fig2 import PROFILES, ensure_data, load_results, plan, 
 from oneshot.experiments.lines import LABELS, LINES
 from oneshot import methods
 from oneshot.experiments.rows import read_rows
+from oneshot.experiments.ship import NotShippable, ship
 from oneshot.experiments.summary import PLOTS, compare, plot, pool_evaluations, summarise, write_summary
 from oneshot.experiments.sweep import SweepLocked, sweep
 from oneshot.tools import cli, files
@@ -98,6 +101,8 @@ def main(argv=None):
                         "--lines mil-released --seeds 0; their summary and figure are summary[_seeds<S>]_<line>_"
                         "<line>....json and .png (many lines: _<N>lines-<hash>)")
     f.add_argument("--no-progress", action="store_true", help="no progress bar")
+    f.add_argument("--data-only", action="store_true",
+                   help="collect the profile's datasets into --data and stop (e.g. to evaluate a shipped policy)")
     f.add_argument("--keep-rows", action="store_true",
                    help="count the rows already in the results folder as done, though this work folder did not "
                         "produce them: to continue your own sweep after its work folder is gone (never to reproduce)")
@@ -120,7 +125,24 @@ def main(argv=None):
     s.add_argument("evaluations", nargs="+", metavar="JSON",
                    help="`python -m oneshot.evaluate CKPT --split S --json FILE` results, one per training seed")
     s.add_argument("--out", type=cli.writable_file, default=None, help="also write the summary here (JSON)")
+    h = commands.add_parser("ship", help="copy a finished run of a profile's line as a pretrained policy, its "
+                                         "datasets' paths made those `fig2 --profile P --data-only` collects")
+    h.add_argument("--profile", choices=sorted(PROFILES), required=True, help="the sweep that trained it")
+    h.add_argument("--line", required=True, help="the line, e.g. mil-released+widths-flat")
+    h.add_argument("--seed", type=int, required=True, help="the run's training seed")
+    h.add_argument("--work", default=os.path.join("runs", "fig2"), help="the runs' work folders (default: runs/fig2)")
+    h.add_argument("--data", default="data/fig2", help="where the shipped policy's datasets are looked for "
+                                                       "(default: data/fig2)")
+    h.add_argument("--out", type=cli.writable_file, required=True, help="the policy file, e.g. oneshot/pretrained/F.npz")
     args = p.parse_args(argv)
+    if args.experiment == "ship":
+        try:
+            spec = ship(PROFILES[args.profile], args.line, args.seed, args.work, args.data, args.out)
+        except NotShippable as e:
+            h.error(str(e))
+        print(f"{args.out}: {spec.run_id} of the {args.profile} profile; its datasets are looked for in {args.data} "
+              f"(python -m oneshot.experiments fig2 --profile {args.profile} --data {args.data} --data-only)")
+        return 0
     if args.experiment == "summarise":
         return _summarise(args.results, argv)
     if args.experiment == "seeds":
@@ -164,6 +186,9 @@ def main(argv=None):
                 f.error(f"argument --scheduler: no Dask scheduler at {args.scheduler!r} ({e}); start one, or "
                         f"drop --scheduler to run here")
             ensure_data(cfg, args.data, progress=not args.no_progress)
+            if args.data_only:
+                print(f"the {cfg.name} profile's datasets are in {args.data}")
+                return 0
             try:
                 rows = sweep(runs, out, args.work, run_context(cfg, args.data), run_one, executor=executor,
                              progress=not args.no_progress, workers=workers, keep_rows=args.keep_rows)

@@ -1,0 +1,57 @@
+"""A finished run of a sweep, shipped as a pretrained policy (`oneshot/pretrained/`): the run's own
+checkpoint, with the paths of its datasets made those a user's `python -m oneshot.experiments fig2
+--profile P --data-only` collects, instead of the machine's that trained it.
+
+    python -m oneshot.experiments ship --profile ablation --line L --seed S --out oneshot/pretrained/F.npz
+
+The shipped file is reproduced by running that line and seed again (`fig2 --profile P --lines L --seeds S`,
+the same numbers to float32 rounding) and shipping it the same way.
+"""
+import dataclasses
+import os
+
+from oneshot.experiments.fig2 import data_paths, plan, run_config, run_context
+from oneshot.experiments.rows import ROW_FILE
+from oneshot.training import checkpoint, run_folder
+
+SPLITS = {"train": "train_data", "validation": "validation_data", "test": "test_data"}
+
+
+class NotShippable(ValueError):
+    """The run asked for is not in the profile, has not finished, or was trained otherwise."""
+
+
+def finished_run(cfg, line, seed, work_dir):
+    """The RunSpec and run folder of `line`'s run with `seed` at the sweep `cfg`'s largest size, checked
+    finished (its row written). Raises NotShippable naming what is missing and the command that makes it."""
+    runs = [r for r in plan(cfg) if r.method == line and r.seed == seed]
+    if not runs:
+        raise NotShippable(f"the {cfg.name} profile has no run of line {line!r} with seed {seed} (its lines: "
+                           f"{', '.join(cfg.methods)}; its seeds: {', '.join(map(str, cfg.seeds))})")
+    spec = max(runs, key=lambda r: r.size)
+    folder = os.path.join(work_dir, spec.run_id)
+    if not os.path.isfile(os.path.join(folder, ROW_FILE)):
+        raise NotShippable(f"{folder} holds no finished run; make it with: python -m oneshot.experiments fig2 "
+                           f"--profile {cfg.name} --lines {line} --seeds {seed} --work {work_dir}")
+    return spec, folder
+
+
+def ship(cfg, line, seed, work_dir, data_dir, out):
+    """Write the finished run of `line` and `seed` (`finished_run`) to `out`, its dataset paths made
+    data_dir/<the sweep's file name> (relative if data_dir is). Checks that the checkpoint is the run's
+    last and was trained with the line's configuration for that run (but for its data's folder and the
+    fields a resume may change). Returns the run's spec."""
+    spec, folder = finished_run(cfg, line, seed, work_dir)
+    ckpt = checkpoint.load(os.path.join(folder, "checkpoint.npz"))
+    trained = ckpt["config"]
+    expected = run_config(spec, run_context(cfg, os.path.dirname(trained.train_data)))
+    as_run = dataclasses.replace(trained, **{n: getattr(expected, n) for n in run_folder.RESUMABLE})
+    if ckpt["iteration"] != spec.iterations or as_run != expected or ckpt["ln_offsets_drawn"]:
+        raise NotShippable(f"{folder}/checkpoint.npz is not {spec.run_id} as this code trains it (iteration "
+                           f"{ckpt['iteration']} of {spec.iterations}, or another configuration); run it again")
+    names = {split: os.path.basename(path) for split, path in data_paths(cfg, data_dir).items()}
+    shipped = dataclasses.replace(trained, **{field: os.path.join(data_dir, names[split])
+                                             for split, field in SPLITS.items()})
+    checkpoint.save(out, ckpt["params"], ckpt["adam"], ckpt["iteration"], ckpt["rng"], shipped, ckpt["network"],
+                    ema=ckpt["ema"], world=ckpt["world"], seconds=ckpt["seconds"])
+    return spec
