@@ -9,7 +9,7 @@ run scored on the profile's split (`oneshot.experiments.fig2`):
     python -m oneshot.experiments fig2 --profile paper --local-cluster 4   # Dask, pip install ".[cluster]"
     python -m oneshot.experiments fig2 --profile paper --scheduler tcp://host:8786
     python -m oneshot.experiments fig2 --profile quick --compare results/fig2_quick   # check a reproduction
-    python -m oneshot.experiments summarise results/fig2_paper            # summary and figure from runs.csv
+    python -m oneshot.experiments summarise results/fig2_paper-validation   # summary, figure from runs.csv
     python -m oneshot.experiments seeds results/default_seeds/seed*_test.json   # one recipe over its seeds
     python -m oneshot.experiments fig2 --profile ablation --data-only     # its datasets only
     python -m oneshot.experiments ship --profile ablation --line L --seed 0 --out F.npz   # a run as a policy
@@ -118,7 +118,7 @@ def main(argv=None):
                        help='start a Dask cluster of N one-thread worker processes here (pip install ".[cluster]")')
     r = commands.add_parser("summarise", help="the summary and figure of a results folder from its runs.csv, "
                                               "with today's intervals (no run is done)")
-    r.add_argument("results", help="a results folder holding runs.csv and summary.json, e.g. results/fig2_paper")
+    r.add_argument("results", help="a results folder holding runs.csv and summary.json, e.g. results/fig2_paper-validation")
     s = commands.add_parser("seeds", help="one recipe's policies, trained with different seeds and scored by "
                                           "evaluate --json on one split: their mean with its interval over seeds "
                                           "and colours")
