@@ -559,3 +559,19 @@ def test_a_finished_run_ships_as_a_policy_that_scores_what_its_row_says(tmp_path
         dataclasses.replace(run["config"], train_data="", validation_data="", test_data="")
     scored = evaluate.main(["policy.npz", "--split", TINY.score, "--trials", str(TINY.trials), "--train", ""])
     assert scored[TINY.score]["successes"] == row["successes"] and scored[TINY.score]["trials"] == row["trials"]
+
+
+def test_the_every_parameter_policy_is_the_ablations_run_of_its_chosen_line():
+    """The README's claim: oneshot/pretrained/mil_every_parameter.npz is `fig2 --profile ablation --lines
+    mil-released+widths-flat --seeds 0`'s run, shipped (`ship`): its configuration, iterations, moving
+    average, and datasets where `fig2 --profile ablation --data-only` puts them."""
+    path = os.path.join(os.path.dirname(__file__), "..", "oneshot", "pretrained", "mil_every_parameter.npz")
+    ckpt, cfg = checkpoint.load(path), PROFILES["ablation"]
+    spec = next(r for r in plan(cfg) if r.method == "mil-released+widths-flat" and r.seed == 0)
+    expected = fig2.run_config(spec, run_context(cfg, "data/fig2"))
+    paths = {f: os.path.join("data/fig2", os.path.basename(getattr(expected, f))) for f in ("train_data",
+                                                                                          "validation_data", "test_data")}
+    assert ckpt["config"] == dataclasses.replace(expected, **paths)
+    assert ckpt["config"].inner_params == "all" and ckpt["iteration"] == spec.iterations
+    assert ckpt["ema"] is not None and not ckpt["ln_offsets_drawn"]
+    assert os.path.getsize(path) < 2_000_000
