@@ -42,7 +42,7 @@ from oneshot.experiments.fig2 import PROFILES, ensure_data, load_results, plan, 
 from oneshot.experiments.lines import LABELS, LINES
 from oneshot import methods
 from oneshot.experiments.rows import read_rows
-from oneshot.experiments.ship import NotShippable, ship
+from oneshot.experiments.ship import add_ship_command, run_ship_command
 from oneshot.experiments.summary import PLOTS, compare, plot, pool_evaluations, summarise, write_summary
 from oneshot.experiments.sweep import SweepLocked, sweep
 from oneshot.tools import cli, files
@@ -125,24 +125,10 @@ def main(argv=None):
     s.add_argument("evaluations", nargs="+", metavar="JSON",
                    help="`python -m oneshot.evaluate CKPT --split S --json FILE` results, one per training seed")
     s.add_argument("--out", type=cli.writable_file, default=None, help="also write the summary here (JSON)")
-    h = commands.add_parser("ship", help="copy a finished run of a profile's line as a pretrained policy, its "
-                                         "datasets' paths made those `fig2 --profile P --data-only` collects")
-    h.add_argument("--profile", choices=sorted(PROFILES), required=True, help="the sweep that trained it")
-    h.add_argument("--line", required=True, help="the line, e.g. mil-released+widths-flat")
-    h.add_argument("--seed", type=int, required=True, help="the run's training seed")
-    h.add_argument("--work", default=os.path.join("runs", "fig2"), help="the runs' work folders (default: runs/fig2)")
-    h.add_argument("--data", default="data/fig2", help="where the shipped policy's datasets are looked for "
-                                                       "(default: data/fig2)")
-    h.add_argument("--out", type=cli.writable_file, required=True, help="the policy file, e.g. oneshot/pretrained/F.npz")
+    h = add_ship_command(commands)
     args = p.parse_args(argv)
     if args.experiment == "ship":
-        try:
-            spec = ship(PROFILES[args.profile], args.line, args.seed, args.work, args.data, args.out)
-        except NotShippable as e:
-            h.error(str(e))
-        print(f"{args.out}: {spec.run_id} of the {args.profile} profile; its datasets are looked for in {args.data} "
-              f"(python -m oneshot.experiments fig2 --profile {args.profile} --data {args.data} --data-only)")
-        return 0
+        return run_ship_command(args, h)
     if args.experiment == "summarise":
         return _summarise(args.results, argv)
     if args.experiment == "seeds":

@@ -10,8 +10,9 @@ the same numbers to float32 rounding) and shipping it the same way.
 import dataclasses
 import os
 
-from oneshot.experiments.fig2 import data_paths, plan, run_config, run_context
+from oneshot.experiments.fig2 import PROFILES, data_paths, plan, run_config, run_context
 from oneshot.experiments.rows import ROW_FILE
+from oneshot.tools import cli
 from oneshot.training import checkpoint, run_folder
 
 SPLITS = {"train": "train_data", "validation": "validation_data", "test": "test_data"}
@@ -55,3 +56,28 @@ def ship(cfg, line, seed, work_dir, data_dir, out):
     checkpoint.save(out, ckpt["params"], ckpt["adam"], ckpt["iteration"], ckpt["rng"], shipped, ckpt["network"],
                     ema=ckpt["ema"], world=ckpt["world"], seconds=ckpt["seconds"])
     return spec
+
+
+def add_ship_command(commands):
+    """`python -m oneshot.experiments ship`'s parser, added to `commands` (argparse subparsers)."""
+    h = commands.add_parser("ship", help="copy a finished run of a profile's line as a pretrained policy, its "
+                                         "datasets' paths made those `fig2 --profile P --data-only` collects")
+    h.add_argument("--profile", choices=sorted(PROFILES), required=True, help="the sweep that trained it")
+    h.add_argument("--line", required=True, help="the line, e.g. mil-released+widths-flat")
+    h.add_argument("--seed", type=int, required=True, help="the run's training seed")
+    h.add_argument("--work", default=os.path.join("runs", "fig2"), help="the runs' work folders (default: runs/fig2)")
+    h.add_argument("--data", default="data/fig2", help="where the shipped policy's datasets are looked for "
+                                                       "(default: data/fig2)")
+    h.add_argument("--out", type=cli.writable_file, required=True, help="the policy file, e.g. oneshot/pretrained/F.npz")
+    return h
+
+
+def run_ship_command(args, parser):
+    """Ship as `args` say; a run that cannot be shipped is a one-line error (exit 2). Returns 0."""
+    try:
+        spec = ship(PROFILES[args.profile], args.line, args.seed, args.work, args.data, args.out)
+    except NotShippable as e:
+        parser.error(str(e))
+    print(f"{args.out}: {spec.run_id} of the {args.profile} profile; its datasets are looked for in {args.data} "
+          f"(python -m oneshot.experiments fig2 --profile {args.profile} --data {args.data} --data-only)")
+    return 0
