@@ -40,7 +40,8 @@ def main(argv=None):
     p.add_argument("--seed", type=cli.non_negative_int, default=0, help="seed of the trial scenes")
     p.add_argument("--demo-scenes", action="store_true",
                    help="act in the recorded scenes of the demonstrations (trial j adapts on demo j, acts in demo "
-                        "j + 1's scene), not in new ones: has the policy memorised its meta-training scenes?")
+                        "(j + 1) mod min(demos, trials)'s scene), not in new ones: has the policy memorised its "
+                        "meta-training scenes?")
     p.add_argument("--unadapted", action="store_true",
                    help="also run the policy without adaptation, in the same scenes (does adapting help?)")
     p.add_argument("--raw", action="store_true",

@@ -145,8 +145,8 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
     `dataset`, `trials_per_colour` trials; trial j conditions the policy on demo j % K of that task
     and runs it in a fresh scene of that colour (`trial_seed`).
 
-    demo_scenes: run trial j instead in the recorded scene of the task's demo (j + 1) % K (the same
-    positions, a different demo from the one it adapts on). On meta-training data this asks whether a
+    demo_scenes: run trial j instead in the recorded scene of the task's demo (j + 1) % k, k = min(K,
+    trials_per_colour): another of the demos the trials adapt on (the same positions and colours). On meta-training data this asks whether a
     policy has learnt the task or memorised its training scenes (docs/results.md, section 10).
 
     condition(demo) -> policy: what one demonstration (network units) makes of the policy, e.g.
@@ -160,9 +160,9 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
     world_cfg = world_config(meta)
     world = ReachWorld(world_cfg)
     n, k = dataset["images"].shape[:2]
+    k = min(k, trials_per_colour)                     # only these demos are used: convert just them
     scene_seed = ((lambda i, j: int(dataset["seeds"][i, (j + 1) % k])) if demo_scenes else
                   (lambda i, j: trial_seed(seed, i, j, meta["split"])))
-    k = min(k, trials_per_colour)                     # only these demos are used: convert just them
     demos = prepare_demos(dataset["images"][:, :k], dataset["states"][:, :k], dataset["actions"][:, :k],
                           world_cfg.arm.max_torque)
     wins, per_colour, failures = 0, {}, {"near_miss": 0, "wrong_object": 0}
