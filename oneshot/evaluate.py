@@ -75,6 +75,8 @@ def main(argv=None):
         method = methods.of(cfg)
     except ValueError as e:
         p.error(f"{e} (--alpha >= 0, --inner-steps >= 0)")
+    if args.demo_scenes and args.trials < 2:
+        p.error(f"--demo-scenes needs --trials >= 2 (trial j acts in another demo's scene); got {args.trials}")
     if args.unadapted and not method.adapts:
         p.error(f"--unadapted compares a policy before and after eq. (1); {cfg.method!r} does not adapt")
     splits = [args.split] + (["train"] if args.train != "" else [])

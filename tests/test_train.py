@@ -310,6 +310,10 @@ def test_evaluate_can_act_in_the_scenes_of_the_demonstrations(tiny, tmp_path, mo
         assert list(trial["scene"].colours) == list(d["colours"][i, k])
     with open(tmp_path / "e.json") as f:
         assert json.load(f)["policy"]["recipe"]["demo_scenes"] is True
+    with pytest.raises(SystemExit):                       # 1 trial would act in its own demo's scene
+        evaluate.main([ckpt, "--validation", tiny.validation_data, "--trials", "1", "--demo-scenes"])
+    with pytest.raises(ValueError, match="demo scenes need 2 <= trials per colour <= the 2 demos"):
+        imitation.one_shot_success(lambda demo: None, heldout, 3, demo_scenes=True)   # a trial would repeat one
     played.clear()
     evaluate.main([ckpt, "--validation", tiny.validation_data, "--trials", "3", "--train", ""])
     recorded = {tuple(np.round(p, 6).ravel()) for p in heldout["positions"].reshape(-1, *heldout["positions"].shape[2:])}

@@ -46,7 +46,8 @@ def ship(cfg, line, seed, work_dir, data_dir, out):
     ckpt = checkpoint.load(os.path.join(folder, "checkpoint.npz"))
     trained = ckpt["config"]
     expected = run_config(spec, run_context(cfg, os.path.dirname(trained.train_data)))
-    as_run = dataclasses.replace(trained, **{n: getattr(expected, n) for n in run_folder.RESUMABLE})
+    # what a resume may change, but not the step size: a line of the ablation is an lr change
+    as_run = dataclasses.replace(trained, **{n: getattr(expected, n) for n in run_folder.RESUMABLE if n != "lr"})
     if ckpt["iteration"] != spec.iterations or as_run != expected or ckpt["ln_offsets_drawn"]:
         raise NotShippable(f"{folder}/checkpoint.npz is not {spec.run_id} as this code trains it (iteration "
                            f"{ckpt['iteration']} of {spec.iterations}, or another configuration); run it again")

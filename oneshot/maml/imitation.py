@@ -160,6 +160,9 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
     world_cfg = world_config(meta)
     world = ReachWorld(world_cfg)
     n, k = dataset["images"].shape[:2]
+    if demo_scenes and not 2 <= trials_per_colour <= k:   # else a trial replays another, or its own demo's scene
+        raise ValueError(f"demo scenes need 2 <= trials per colour <= the {k} demos per colour of the "
+                         f"{meta['split']} dataset; got {trials_per_colour}")
     k = min(k, trials_per_colour)                     # only these demos are used: convert just them
     scene_seed = ((lambda i, j: int(dataset["seeds"][i, (j + 1) % k])) if demo_scenes else
                   (lambda i, j: trial_seed(seed, i, j, meta["split"])))
