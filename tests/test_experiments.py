@@ -6,17 +6,19 @@ import fcntl
 import glob
 import json
 import os
+import shlex
 import shutil
 
 import numpy as np
 import pytest
 
-from oneshot import evaluate
+from oneshot import collect, evaluate
+from oneshot.data import datasets
 from oneshot.experiments import __main__ as command, fig2, lines
 from oneshot.experiments import sweep as sweeping
 from oneshot.training.scoring import wilson_interval
 from oneshot.experiments.fig2 import PROFILES, plan, run_context
-from oneshot.training import checkpoint, run_folder
+from oneshot.training import checkpoint, run_data, run_folder
 from oneshot.experiments import stats, summary
 from oneshot.experiments.summary import plot, summarise
 from oneshot.experiments import rows as sweep_rows
@@ -559,6 +561,39 @@ def test_a_finished_run_ships_as_a_policy_that_scores_what_its_row_says(tmp_path
         dataclasses.replace(run["config"], train_data="", validation_data="", test_data="")
     scored = evaluate.main(["policy.npz", "--split", TINY.score, "--trials", str(TINY.trials), "--train", ""])
     assert scored[TINY.score]["successes"] == row["successes"] and scored[TINY.score]["trials"] == row["trials"]
+    notes = json.loads(row["notes"])              # successes are 0 after 2 iterations; eq. (2) is not
+    assert scored["adaptation_gain"]["after"] == pytest.approx(notes["eq2_after"], abs=1e-3)
+    assert scored["adaptation_gain"]["before"] == pytest.approx(notes["eq2_before"], abs=1e-3)
+    # a checkpoint trained otherwise (another step size; stopped early) is refused, naming what differs
+    trained = os.path.join("w", spec.run_id, "checkpoint.npz")
+    for change, message in (({"config": dataclasses.replace(run["config"], lr=run["config"].lr / 2)}, "lr "),
+                            ({"iteration": 1}, f"iteration 1 of {spec.iterations}")):
+        c = dict(run, **change)
+        checkpoint.save(trained, c["params"], c["adam"], c["iteration"], c["rng"], c["config"], c["network"],
+                        ema=c["ema"], world=c["world"], seconds=c["seconds"])
+        with pytest.raises(SystemExit) as e:
+            command.main([*ship[:-1], "refused.npz"])
+        assert e.value.code == 2 and message in capsys.readouterr().err and not os.path.exists("refused.npz")
+
+
+def test_a_shipped_policys_missing_data_hint_collects_the_sweeps_own_file(tmp_path, monkeypatch):
+    """Evaluating a policy of a Figure 2 run whose datasets are missing: the collect command in the message,
+    run as printed, makes the same file `fig2 --data-only` makes (its colours and demos, not every colour of
+    the split at the profile's demos)."""
+    monkeypatch.chdir(tmp_path)
+    assert command.main(["fig2", "--profile", "tiny", "--data-only", "--data", "d", "--no-progress"]) == 0
+    spec = next(r for r in plan(TINY) if r.method == "mil-conv0")
+    cfg = fig2.run_config(spec, run_context(TINY, "e"))               # its datasets are looked for in e/
+    for split in ("validation", "test", "train"):
+        message = run_data.missing(cfg, [split])
+        words = shlex.split(message.split("make it with: ")[1])
+        assert words[:3] == ["python", "-m", "oneshot.collect"]
+        collect.main([*words[3:], "--workers", "1"])
+        made, sweeps = (datasets.load(os.path.join(f, os.path.basename(getattr(cfg, f"{split}_data"))))
+                        for f in ("e", "d"))
+        assert made["images"].shape == sweeps["images"].shape and np.array_equal(made["actions"], sweeps["actions"])
+    named = dataclasses.replace(cfg, validation_data="e/mine.npz")   # a name of the user's: every colour
+    assert run_data.collected_size(named, "validation") == (run_data.tasks(cfg, "validation"), cfg.validation_demos)
 
 
 def test_the_every_parameter_policy_is_the_ablations_run_of_its_chosen_line():

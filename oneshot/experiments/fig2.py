@@ -128,7 +128,7 @@ def data_paths(cfg, data_dir):
     """{split: dataset path} of a sweep: named by what they hold, so profiles that collect the same data
     share it."""
     folder = os.path.abspath(data_dir)
-    return {split: os.path.join(folder, f"{cfg.palette_mode}_{split}_c{c}_d{d}_s{run_data.SEEDS[split]}.npz")
+    return {split: os.path.join(folder, run_data.file_name(cfg.palette_mode, split, c, d))
             for split, (c, d) in cfg.splits().items()}
 
 

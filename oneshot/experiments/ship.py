@@ -32,8 +32,9 @@ def finished_run(cfg, line, seed, work_dir):
     spec = max(runs, key=lambda r: r.size)
     folder = os.path.join(work_dir, spec.run_id)
     if not os.path.isfile(os.path.join(folder, ROW_FILE)):
+        sizes = "" if len(cfg.sizes) == 1 else f" (it trains the line at each of the {len(cfg.sizes)} sizes; the largest ships)"
         raise NotShippable(f"{folder} holds no finished run; make it with: python -m oneshot.experiments fig2 "
-                           f"--profile {cfg.name} --lines {line} --seeds {seed} --work {work_dir}")
+                           f"--profile {cfg.name} --lines {line} --seeds {seed} --work {work_dir}{sizes}")
     return spec, folder
 
 
@@ -48,9 +49,13 @@ def ship(cfg, line, seed, work_dir, data_dir, out):
     expected = run_config(spec, run_context(cfg, os.path.dirname(trained.train_data)))
     # what a resume may change, but not the step size: a line of the ablation is an lr change
     as_run = dataclasses.replace(trained, **{n: getattr(expected, n) for n in run_folder.RESUMABLE if n != "lr"})
-    if ckpt["iteration"] != spec.iterations or as_run != expected or ckpt["ln_offsets_drawn"]:
-        raise NotShippable(f"{folder}/checkpoint.npz is not {spec.run_id} as this code trains it (iteration "
-                           f"{ckpt['iteration']} of {spec.iterations}, or another configuration); run it again")
+    wrong = [f"{f.name} {getattr(as_run, f.name)!r}, not {getattr(expected, f.name)!r}"
+             for f in dataclasses.fields(expected) if getattr(as_run, f.name) != getattr(expected, f.name)]
+    wrong += [f"iteration {ckpt['iteration']} of {spec.iterations}"] if ckpt["iteration"] != spec.iterations else []
+    wrong += ["random layer-norm offsets at the start"] if ckpt["ln_offsets_drawn"] else []
+    if wrong:
+        raise NotShippable(f"{folder}/checkpoint.npz is not {spec.run_id} as this code trains it ({'; '.join(wrong)}): "
+                           f"move that folder aside and run it again")
     names = {split: os.path.basename(path) for split, path in data_paths(cfg, data_dir).items()}
     shipped = dataclasses.replace(trained, **{field: os.path.join(data_dir, names[split])
                                              for split, field in SPLITS.items()})

@@ -8,6 +8,7 @@ what the profile asks for.
     train_set = run_data.subset(train_set, tasks=72, demos=12)
 """
 import os
+import re
 import shlex
 import sys
 
@@ -37,11 +38,26 @@ def tasks(cfg, split):
     return len(palette.split_colours(split, PaletteConfig(mode=cfg.palette)))
 
 
+def file_name(palette_mode, split, colours, demos):
+    """The name of a dataset of `colours` x `demos` of `split` collected with the split's seed, as a
+    Figure 2 sweep names its datasets (`oneshot.experiments.fig2.data_paths`): grid_test_c48_d10_s2.npz."""
+    return f"{palette_mode}_{split}_c{colours}_d{demos}_s{SEEDS[split]}.npz"
+
+
+def collected_size(cfg, split):
+    """(colours, demos per colour) that collecting a TrainConfig's dataset of `split` makes: what its file
+    name says if named by `file_name` (a Figure 2 run's), else every colour of the split x the profile's demos."""
+    path, demos, _ = spec(cfg, split)
+    named = re.fullmatch(rf"{re.escape(cfg.palette)}_{split}_c(\d+)_d(\d+)_s{SEEDS[split]}\.npz", os.path.basename(path))
+    return (int(named[1]), int(named[2])) if named else (tasks(cfg, split), demos)
+
+
 def collect_command(cfg, split):
     """The `python -m oneshot.collect` command that makes a TrainConfig's dataset of `split`: every colour
     of the split, the profile's demos per colour, seed, noise and palette."""
-    path, demos, seed = spec(cfg, split)
-    words = ["python", "-m", "oneshot.collect", "--out", path, "--split", split, "--tasks", str(tasks(cfg, split)),
+    path, _, seed = spec(cfg, split)
+    colours, demos = collected_size(cfg, split)
+    words = ["python", "-m", "oneshot.collect", "--out", path, "--split", split, "--tasks", str(colours),
              "--demos", str(demos), "--seed", str(seed), "--noise", f"{cfg.demo_noise:g}"]
     return shlex.join(words + (["--palette", cfg.palette] if cfg.palette != "hues" else []))
 
@@ -84,14 +100,16 @@ def load(cfg, split):
 
 def ensure(cfg, splits=("train", "validation"), progress=True):
     """[the dataset of each split] of a TrainConfig, loaded and checked, each collected first if missing
-    (every colour of its split: 36 and 12 in the hues palette)."""
+    (`collected_size`: every colour of its split, 36 and 12 in the hues palette, or what a Figure 2 file
+    name says)."""
     out = []
     for split in splits:
-        path, demos, seed = spec(cfg, split)
+        path, _, seed = spec(cfg, split)
         if not os.path.exists(path):
             print(f"{path} is missing: collecting it ({collect_command(cfg, split)})", file=sys.stderr)
             world_cfg = WorldConfig(palette=PaletteConfig(mode=cfg.palette))
-            datasets.save(collection.collect(tasks(cfg, split), demos, split, seed, progress=progress, world_cfg=world_cfg,
+            colours, demos = collected_size(cfg, split)
+            datasets.save(collection.collect(colours, demos, split, seed, progress=progress, world_cfg=world_cfg,
                                              expert_cfg=ExpertConfig(action_noise=cfg.demo_noise)), path)
         out.append(load(cfg, split))
     return out
