@@ -1,10 +1,14 @@
 """`python -m oneshot.benchmark maml`: what its figures are made of (the timings themselves are for the
 benchmark, not the tests). Each runs the benchmark in its own process: it sets BLAS's threads."""
+import dataclasses
 import json
 import subprocess
 import sys
 
 import pytest
+
+from oneshot import methods
+from oneshot.experiments.lines import LINES
 
 
 def benchmark(*argv):
@@ -46,3 +50,15 @@ def test_every_benchmark_option_says_what_it_does(capsys, command):
             if len(inline) < 2 and not below:
                 bare.append(inline[0])
     assert not bare, f"options of `benchmark {command}` without help: {bare}"
+
+
+def test_maml_times_a_figure_2_line_as_its_sweep_trains_it():
+    """`--line L`: the meta-iteration of a line of the sweeps (oneshot.experiments.lines), e.g. Figure 2's
+    every-parameter line (layer norm, every parameter adapts, the released widths), not a training profile's."""
+    line = "mil-released+widths-flat"
+    result = benchmark("--line", line, "--iterations", "1", "--meta-batch", "2", "--shards", "1", "--blas-threads", "1")
+    method = methods.of(dataclasses.replace(LINES[line], meta_batch=2, shards=1))
+    assert (result["profile"], result["inner_params"], result["meta_batch"]) == (line, "all", 2)
+    assert result["gflop_per_iteration"] == round(method.meta_gradient_flops(method.network_config(32), 20, 2) / 1e9, 2)
+    assert result["gflop_per_iteration"] != benchmark("--profile", "released", "--iterations", "1", "--meta-batch", "2",
+                                                      "--shards", "1", "--blas-threads", "1")["gflop_per_iteration"]

@@ -22,6 +22,7 @@ from oneshot import methods
 from oneshot.tools import cli, host
 from oneshot.world import palette
 from oneshot.methods.mil import INNER_PARAMS
+from oneshot.experiments.lines import LINES
 from oneshot.training.config import PROFILES
 from oneshot.world.reach import WorldConfig
 
@@ -48,6 +49,9 @@ def main(argv=None):
                    help="meta-iterations timed; the median is reported (default 20)")
     m.add_argument("--profile", choices=sorted(PROFILES), default="default",
                    help="the training profile whose meta-iteration is timed (default: default)")
+    m.add_argument("--line", choices=sorted(LINES), default=None,
+                   help="time a line of Figure 2's sweeps instead (e.g. mil-released+widths-flat, Figure 2's "
+                        "every-parameter line)")
     m.add_argument("--method", choices=[n for n, m in methods.REGISTRY.items() if m.learns], default=None,
                    help="time a baseline's iteration (same meta-batch, trunk and widths) instead of MIL's")
     m.add_argument("--lstm-units", type=cli.positive_int, default=None, help="override the LSTM baseline's width")
@@ -105,13 +109,13 @@ def main(argv=None):
         if args.breakdown:
             if args.peer:
                 m.error("--peer times whole meta-iterations; drop --breakdown")
-            result = bench_breakdown(args.iterations, args.profile, **overrides)
+            result = bench_breakdown(args.iterations, args.line or args.profile, **overrides)
         else:
             try:
                 peers.require(args.peer) if args.peer else None
             except ValueError as error:
                 m.error(f"argument --peer: {error}")
-            result = bench_meta_iteration(args.iterations, args.profile, blas_threads=args.blas_threads,
+            result = bench_meta_iteration(args.iterations, args.line or args.profile, blas_threads=args.blas_threads,
                                           peer=args.peer, **overrides)
     main_mb, worker_mb = host.peak_memory_mb()
     result["peak_memory_mb"] = round(main_mb, 1)

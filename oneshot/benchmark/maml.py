@@ -13,9 +13,14 @@ import numpy as np
 from oneshot.benchmark import peers
 from oneshot import methods
 from oneshot.tools import host
+from oneshot.experiments.lines import LINES
 from oneshot.training.config import PROFILES
 
 
+def timed_config(profile):
+    """The TrainConfig timed under a name: a training profile (`oneshot.training.config.PROFILES`) or a
+    line of Figure 2's sweeps (`oneshot.experiments.lines.LINES`, e.g. mil-released+widths-flat)."""
+    return PROFILES[profile] if profile in PROFILES else LINES[profile]
 
 def synthetic_demos(rng, tasks, T, image_size):
     """Random demos shaped like one side of a meta-batch, for timing: images (tasks, T, H, W, 3) in
@@ -26,8 +31,9 @@ def synthetic_demos(rng, tasks, T, image_size):
 
 
 def bench_setup(profile, image_size, **overrides):
-    """(method, net_cfg, params, rng) for timing a profile (with overridden fields) on synthetic data."""
-    method = methods.of(dataclasses.replace(PROFILES[profile], **overrides))
+    """(method, net_cfg, params, rng) for timing a profile or line (`timed_config`, with overridden fields)
+    on synthetic data."""
+    method = methods.of(dataclasses.replace(timed_config(profile), **overrides))
     rng = np.random.default_rng(0)
     net_cfg = method.network_config(image_size)
     return method, net_cfg, method.init_params(net_cfg, rng), rng
