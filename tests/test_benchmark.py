@@ -54,11 +54,17 @@ def test_every_benchmark_option_says_what_it_does(capsys, command):
 
 def test_maml_times_a_figure_2_line_as_its_sweep_trains_it():
     """`--line L`: the meta-iteration of a line of the sweeps (oneshot.experiments.lines), e.g. Figure 2's
-    every-parameter line (layer norm, every parameter adapts, the released widths), not a training profile's."""
+    every-parameter line (layer norm, every parameter adapts, the released widths), not a training profile's,
+    as a sweep trains it (one process, one BLAS thread). Not with --profile; not a line that does not learn."""
     line = "mil-released+widths-flat"
-    result = benchmark("--line", line, "--iterations", "1", "--meta-batch", "2", "--shards", "1", "--blas-threads", "1")
+    result = benchmark("--line", line, "--iterations", "1", "--meta-batch", "2")
     method = methods.of(dataclasses.replace(LINES[line], meta_batch=2, shards=1))
-    assert (result["profile"], result["inner_params"], result["meta_batch"]) == (line, "all", 2)
+    assert (result["line"], result["inner_params"], result["meta_batch"]) == (line, "all", 2)
+    assert (result["shards"], result["blas_threads"]) == (1, 1) and "profile" not in result
     assert result["gflop_per_iteration"] == round(method.meta_gradient_flops(method.network_config(32), 20, 2) / 1e9, 2)
     assert result["gflop_per_iteration"] != benchmark("--profile", "released", "--iterations", "1", "--meta-batch", "2",
                                                       "--shards", "1", "--blas-threads", "1")["gflop_per_iteration"]
+    for argv, message in ((["--profile", "released", "--line", line], "not allowed with argument --profile"),
+                          (["--line", "random"], "argument --line: invalid choice: 'random'")):
+        out = subprocess.run([sys.executable, "-m", "oneshot.benchmark", "maml", *argv], capture_output=True, text=True)
+        assert out.returncode == 2 and message in out.stderr

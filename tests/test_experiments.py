@@ -544,7 +544,8 @@ def test_a_finished_run_ships_as_a_policy_that_scores_what_its_row_says(tmp_path
     ship = ["ship", "--profile", "tiny", "--line", "mil-conv0", "--seed", "0", "--work", "w", "--data", "d",
             "--out", "policy.npz"]
     for argv, message in ((ship, "holds no finished run; make it with: python -m oneshot.experiments fig2 --profile "
-                                 "tiny --lines mil-conv0 --seeds 0"),
+                                 "tiny --lines mil-conv0 --seeds 0 --work w (that command trains the line at each of "
+                                 "the profile's 2 sizes; ship takes the largest)"),
                           ([*ship[:4], "lstm-9", *ship[5:]], "has no run of line 'lstm-9'")):
         with pytest.raises(SystemExit) as e:
             command.main(argv)
@@ -566,7 +567,8 @@ def test_a_finished_run_ships_as_a_policy_that_scores_what_its_row_says(tmp_path
     assert scored["adaptation_gain"]["before"] == pytest.approx(notes["eq2_before"], abs=1e-3)
     # a checkpoint trained otherwise (another step size; stopped early) is refused, naming what differs
     trained = os.path.join("w", spec.run_id, "checkpoint.npz")
-    for change, message in (({"config": dataclasses.replace(run["config"], lr=run["config"].lr / 2)}, "lr "),
+    lr = run["config"].lr
+    for change, message in (({"config": dataclasses.replace(run["config"], lr=lr / 2)}, f"(lr {lr / 2!r}, not {lr!r})"),
                             ({"iteration": 1}, f"iteration 1 of {spec.iterations}")):
         c = dict(run, **change)
         checkpoint.save(trained, c["params"], c["adam"], c["iteration"], c["rng"], c["config"], c["network"],
@@ -588,12 +590,25 @@ def test_a_shipped_policys_missing_data_hint_collects_the_sweeps_own_file(tmp_pa
         message = run_data.missing(cfg, [split])
         words = shlex.split(message.split("make it with: ")[1])
         assert words[:3] == ["python", "-m", "oneshot.collect"]
-        collect.main([*words[3:], "--workers", "1"])
+        if split == "test":                      # what training's `ensure` collects is the same file
+            run_data.ensure(cfg, [split], progress=False)
+        else:
+            collect.main([*words[3:], "--workers", "1"])
         made, sweeps = (datasets.load(os.path.join(f, os.path.basename(getattr(cfg, f"{split}_data"))))
                         for f in ("e", "d"))
         assert made["images"].shape == sweeps["images"].shape and np.array_equal(made["actions"], sweeps["actions"])
     named = dataclasses.replace(cfg, validation_data="e/mine.npz")   # a name of the user's: every colour
     assert run_data.collected_size(named, "validation") == (run_data.tasks(cfg, "validation"), cfg.validation_demos)
+    # a name that promises too few demos, or another size than the file holds: refused, naming the file
+    short = os.path.join("e", run_data.file_name(cfg.palette, "validation", 3, cfg.validation_demos - 1))
+    with pytest.raises(run_data.DataMismatch, match=f"{short} is named for 3 validation colours x"):
+        run_data.missing(dataclasses.replace(cfg, validation_data=short), ["validation"])
+    test_file = os.path.basename(cfg.test_data)
+    renamed = os.path.join("e", test_file.replace("_c", "_c1"))     # c2 -> c12: the file holds 2 colours
+    shutil.copy(os.path.join("e", test_file), renamed)
+    colours = datasets.load(renamed)["metadata"]["n_tasks"]
+    with pytest.raises(run_data.DataMismatch, match=f"{colours} colours x .* demos, not the 1{colours} x"):
+        run_data.load(dataclasses.replace(cfg, test_data=renamed), "test")
 
 
 def test_the_every_parameter_policy_is_the_ablations_run_of_its_chosen_line():

@@ -47,11 +47,13 @@ def main(argv=None):
     m = sub.add_parser("maml", help="seconds per second-order meta-iteration")
     m.add_argument("--iterations", type=cli.positive_int, default=20,
                    help="meta-iterations timed; the median is reported (default 20)")
-    m.add_argument("--profile", choices=sorted(PROFILES), default="default",
-                   help="the training profile whose meta-iteration is timed (default: default)")
-    m.add_argument("--line", choices=sorted(LINES), default=None,
-                   help="time a line of Figure 2's sweeps instead (e.g. mil-released+widths-flat, Figure 2's "
-                        "every-parameter line)")
+    timed = m.add_mutually_exclusive_group()
+    timed.add_argument("--profile", choices=sorted(PROFILES), default=None,
+                       help="the training profile whose meta-iteration is timed (default: default)")
+    timed.add_argument("--line", choices=[n for n, c in sorted(LINES.items()) if methods.REGISTRY[c.method].learns],
+                       default=None, metavar="LINE",
+                       help="time a line of the Figure 2 sweeps instead (oneshot/experiments/lines.py, e.g. "
+                            "mil-released+widths-flat), as a sweep trains it: one process, one BLAS thread")
     m.add_argument("--method", choices=[n for n, m in methods.REGISTRY.items() if m.learns], default=None,
                    help="time a baseline's iteration (same meta-batch, trunk and widths) instead of MIL's")
     m.add_argument("--lstm-units", type=cli.positive_int, default=None, help="override the LSTM baseline's width")
@@ -59,9 +61,11 @@ def main(argv=None):
     m.add_argument("--inner-steps", type=cli.non_negative_int, default=None, help="override the profile's inner steps")
     m.add_argument("--inner-params", choices=sorted(INNER_PARAMS), default=None,
                    help="override which parameters the inner steps adapt")
-    m.add_argument("--meta-batch", type=cli.positive_int, default=None, help="override the profile's meta-batch")
+    m.add_argument("--meta-batch", type=cli.positive_int, default=None,
+                   help="override the profile's (line's) meta-batch")
     m.add_argument("--shards", type=cli.positive_int, default=None,
-                   help="override the profile's shards (processes sharing each meta-gradient; 1 = one process)")
+                   help="override the profile's (line's) shards (processes sharing each meta-gradient; "
+                        "1 = one process)")
     m.add_argument("--blas-threads", type=cli.positive_int, default=None,
                    help="BLAS threads of the training process (default: one per core with --shards 1, else 1; "
                         "Figure 2's runs: --shards 1 --blas-threads 1)")
@@ -106,16 +110,20 @@ def main(argv=None):
                                        ("inner_params", args.inner_params), ("meta_batch", args.meta_batch),
                                        ("shards", args.shards), ("method", args.method),
                                        ("lstm_units", args.lstm_units)) if v is not None}
+        timed = args.line or args.profile or "default"
+        if args.line:                        # as fig2 trains a line: one process of one BLAS thread
+            overrides.setdefault("shards", 1)
+            args.blas_threads = args.blas_threads or 1
         if args.breakdown:
             if args.peer:
                 m.error("--peer times whole meta-iterations; drop --breakdown")
-            result = bench_breakdown(args.iterations, args.line or args.profile, **overrides)
+            result = bench_breakdown(args.iterations, timed, **overrides)
         else:
             try:
                 peers.require(args.peer) if args.peer else None
             except ValueError as error:
                 m.error(f"argument --peer: {error}")
-            result = bench_meta_iteration(args.iterations, args.line or args.profile, blas_threads=args.blas_threads,
+            result = bench_meta_iteration(args.iterations, timed, blas_threads=args.blas_threads,
                                           peer=args.peer, **overrides)
     main_mb, worker_mb = host.peak_memory_mb()
     result["peak_memory_mb"] = round(main_mb, 1)

@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from oneshot.benchmark.maml import bench_setup, synthetic_demos
+from oneshot.benchmark.maml import bench_setup, synthetic_demos, timed_key
 from oneshot.experiments.fig2 import PROFILES
 from oneshot.maml import imitation, inner, shards
 from oneshot.policy import affine, conv, layers, network, norm
@@ -81,7 +81,8 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, rollo
     method, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
     cfg = method.cfg
     if not method.adapts:
-        raise ValueError("--breakdown times MIL's meta-gradient on frame shards; drop --method")
+        raise ValueError("--breakdown times MIL's meta-gradient on frame shards, not a baseline's (drop --method, "
+                         "or time a line of MIL)")
     batch = [synthetic_demos(rng, cfg.meta_batch, T, image_size) for _ in range(2)]
     adapt, evaluate = (shards.split_frames(demos, cfg.shards)[-1] for demos in batch)  # the training process's part
     B, frames = adapt[0].shape[:2]
@@ -101,7 +102,7 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, rollo
         parts.append(_grouped_ms(pstats.Stats(profiler).stats, keys))
     ms = {k: float(np.median([p[k] for p in parts])) for k in parts[0]}
     wall = 1e3 * float(np.median(times))
-    result = {"profile": profile, "tasks": int(B), "frames": int(frames), "inner_steps": cfg.inner_steps,
+    result = {timed_key(profile): profile, "tasks": int(B), "frames": int(frames), "inner_steps": cfg.inner_steps,
               "inner_params": cfg.inner_params, "first_order": cfg.first_order, "part_ms": round(wall, 1)}
     result.update({k + "_ms": round(v, 1) for k, v in ms.items()})
     result["autograd_python_ms"] = round(wall - sum(ms.values()), 1)

@@ -17,10 +17,16 @@ from oneshot.experiments.lines import LINES
 from oneshot.training.config import PROFILES
 
 
-def timed_config(profile):
+def timed_config(name):
     """The TrainConfig timed under a name: a training profile (`oneshot.training.config.PROFILES`) or a
-    line of Figure 2's sweeps (`oneshot.experiments.lines.LINES`, e.g. mil-released+widths-flat)."""
-    return PROFILES[profile] if profile in PROFILES else LINES[profile]
+    line of the Figure 2 sweeps (`oneshot.experiments.lines.LINES`, e.g. mil-released+widths-flat)."""
+    return PROFILES[name] if name in PROFILES else LINES[name]
+
+
+def timed_key(name):
+    """The results' key for what was timed: "profile" (a training profile's name) or "line"."""
+    return "profile" if name in PROFILES else "line"
+
 
 def synthetic_demos(rng, tasks, T, image_size):
     """Random demos shaped like one side of a meta-batch, for timing: images (tasks, T, H, W, 3) in
@@ -67,7 +73,8 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
     B, pool = cfg.meta_batch, None
     if peer is not None:
         if not method.adapts:
-            raise ValueError("--peer times MIL's meta-gradient; drop --method")
+            raise ValueError("--peer times MIL's meta-gradient, not a baseline's (drop --method, or time a "
+                             "line of MIL)")
         peer_step, ceiling_threads = peers.meta_gradient(peer, net_cfg, method.inner), cores
 
     def step(a, e):
@@ -92,7 +99,7 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
     ceilings.append(sgemm_rate())
     s, ceiling = float(np.median(times[2:])), float(np.median(ceilings))
     flops = method.meta_gradient_flops(net_cfg, T, B)
-    result = {"profile": profile, "method": cfg.method, "meta_batch": B, "inner_steps": cfg.inner_steps,
+    result = {timed_key(profile): profile, "method": cfg.method, "meta_batch": B, "inner_steps": cfg.inner_steps,
               "inner_params": cfg.inner_params, "T": T, "image_size": image_size, "first_order": cfg.first_order,
               "shards": method.shards, "blas_threads": threads,
               "seconds_per_iteration": round(s, 4),

@@ -32,7 +32,8 @@ def finished_run(cfg, line, seed, work_dir):
     spec = max(runs, key=lambda r: r.size)
     folder = os.path.join(work_dir, spec.run_id)
     if not os.path.isfile(os.path.join(folder, ROW_FILE)):
-        sizes = "" if len(cfg.sizes) == 1 else f" (it trains the line at each of the {len(cfg.sizes)} sizes; the largest ships)"
+        sizes = ("" if len(cfg.sizes) == 1 else f" (that command trains the line at each of the profile's "
+                                                f"{len(cfg.sizes)} sizes; ship takes the largest)")
         raise NotShippable(f"{folder} holds no finished run; make it with: python -m oneshot.experiments fig2 "
                            f"--profile {cfg.name} --lines {line} --seeds {seed} --work {work_dir}{sizes}")
     return spec, folder
@@ -51,8 +52,10 @@ def ship(cfg, line, seed, work_dir, data_dir, out):
     as_run = dataclasses.replace(trained, **{n: getattr(expected, n) for n in run_folder.RESUMABLE if n != "lr"})
     wrong = [f"{f.name} {getattr(as_run, f.name)!r}, not {getattr(expected, f.name)!r}"
              for f in dataclasses.fields(expected) if getattr(as_run, f.name) != getattr(expected, f.name)]
-    wrong += [f"iteration {ckpt['iteration']} of {spec.iterations}"] if ckpt["iteration"] != spec.iterations else []
-    wrong += ["random layer-norm offsets at the start"] if ckpt["ln_offsets_drawn"] else []
+    if ckpt["iteration"] != spec.iterations:
+        wrong.append(f"iteration {ckpt['iteration']} of {spec.iterations}")
+    if ckpt["ln_offsets_drawn"]:
+        wrong.append("began with random layer-norm offsets (saved before they started at zero)")
     if wrong:
         raise NotShippable(f"{folder}/checkpoint.npz is not {spec.run_id} as this code trains it ({'; '.join(wrong)}): "
                            f"move that folder aside and run it again")

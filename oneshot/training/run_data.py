@@ -34,27 +34,44 @@ def spec(cfg, split):
 
 
 def tasks(cfg, split):
-    """How many colours a TrainConfig's `split` holds in its palette (every one is collected)."""
+    """How many colours a TrainConfig's `split` holds in its palette."""
     return len(palette.split_colours(split, PaletteConfig(mode=cfg.palette)))
 
 
 def file_name(palette_mode, split, colours, demos):
     """The name of a dataset of `colours` x `demos` of `split` collected with the split's seed, as a
-    Figure 2 sweep names its datasets (`oneshot.experiments.fig2.data_paths`): grid_test_c48_d10_s2.npz."""
+    Figure 2 sweep names its datasets (`oneshot.experiments.fig2.data_paths`): grid_test_c48_d10_s2.npz.
+    Such a name is a promise: `collected_size` collects what it says, `check` holds the file to it."""
     return f"{palette_mode}_{split}_c{colours}_d{demos}_s{SEEDS[split]}.npz"
+
+
+def _named_size(cfg, split):
+    """(colours, demos) a `file_name`-named dataset path of `split` says it holds, else None."""
+    pattern = re.escape(file_name(cfg.palette, split, "COLOURS", "DEMOS")).replace("COLOURS", r"(\d+)")
+    pattern = pattern.replace("DEMOS", r"(\d+)")
+    named = re.fullmatch(pattern, os.path.basename(spec(cfg, split)[0]))
+    return (int(named[1]), int(named[2])) if named else None
 
 
 def collected_size(cfg, split):
     """(colours, demos per colour) that collecting a TrainConfig's dataset of `split` makes: what its file
-    name says if named by `file_name` (a Figure 2 run's), else every colour of the split x the profile's demos."""
+    name says if named by `file_name` (a Figure 2 run's), else every colour of the split x the profile's
+    demos. Raises DataMismatch if the name says fewer demos than the profile needs, or more colours than
+    the split has."""
     path, demos, _ = spec(cfg, split)
-    named = re.fullmatch(rf"{re.escape(cfg.palette)}_{split}_c(\d+)_d(\d+)_s{SEEDS[split]}\.npz", os.path.basename(path))
-    return (int(named[1]), int(named[2])) if named else (tasks(cfg, split), demos)
+    named = _named_size(cfg, split)
+    if named is None:
+        return tasks(cfg, split), demos
+    if not (1 <= named[0] <= tasks(cfg, split) and named[1] >= demos):
+        raise DataMismatch(f"{path} is named for {named[0]} {split} colours x {named[1]} demos, but this run needs "
+                           f"at least {demos} demos of at most {tasks(cfg, split)} colours; name another file")
+    return named
 
 
 def collect_command(cfg, split):
-    """The `python -m oneshot.collect` command that makes a TrainConfig's dataset of `split`: every colour
-    of the split, the profile's demos per colour, seed, noise and palette."""
+    """The `python -m oneshot.collect` command that makes a TrainConfig's dataset of `split`
+    (`collected_size`: a Figure 2 file's colours and demos, else every colour of the split and the
+    profile's demos per colour), with the split's seed and the profile's noise and palette."""
     path, _, seed = spec(cfg, split)
     colours, demos = collected_size(cfg, split)
     words = ["python", "-m", "oneshot.collect", "--out", path, "--split", split, "--tasks", str(colours),
@@ -84,6 +101,10 @@ def check(cfg, split, metadata, path):
     differ = [f"{k} {held[k]!r}, not {wanted[k]!r}" for k in wanted if held[k] != wanted[k]]
     if metadata.get("demos_per_task", 0) < demos:
         differ.append(f"{metadata.get('demos_per_task')} demos per colour, not {demos}")
+    named = _named_size(cfg, split)             # a Figure 2 file holds what its name says
+    if named and (metadata.get("n_tasks"), metadata.get("demos_per_task")) != named:
+        differ.append(f"{metadata.get('n_tasks')} colours x {metadata.get('demos_per_task')} demos, not the "
+                      f"{named[0]} x {named[1]} its name says")
     if differ:
         raise DataMismatch(f"{path} was collected with other settings than this run's {split} data: "
                            f"{'; '.join(differ)}; move it away (this command then collects the right one: "
