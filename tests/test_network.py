@@ -17,8 +17,9 @@ from autograd.test_util import check_grads
 
 from helpers import naive_conv2d, squared_error
 from oneshot.policy.norm import layer_norm, layer_norm_reference
-from oneshot.policy.network import (STRIDE, NetworkConfig, conv2d_reference, count_flops, forward, forward_reference,
-                             images_to_float, init_params, param_shapes, predict, predict_tasks)
+from oneshot.policy.network import (STRIDE, NetworkConfig, count_flops, forward, images_to_float, init_params,
+                                    param_shapes, predict, predict_tasks)
+from oneshot.policy.reference import conv2d_reference, forward_reference
 
 TINY = NetworkConfig(image_size=8, channels=(2, 3), hidden=(5, 4), state_dim=3, action_dim=2)
 

@@ -5,13 +5,13 @@ import numpy as np
 from autograd import grad
 
 from oneshot.maml import imitation
-from oneshot.policy import layers, network
+from oneshot.policy import layers, reference
 from oneshot.exercises.checking import Case, Checker, Mistake
 from oneshot.exercises.compare import Out
 from oneshot.policy.network import NetworkConfig, forward, init_params
 
 # ----------------------------------------------------------------------------------------------------
-# 4. im2col convolution: layers.conv2d (= network.conv2d_reference, tested)
+# 4. im2col convolution: layers.conv2d (= reference.conv2d_reference, tested)
 # ----------------------------------------------------------------------------------------------------
 
 
@@ -53,7 +53,7 @@ def _wrong_conv(pad=lambda p: (p, p), use_stride=True, order=(0, 1, 2), flip=Fal
 
 
 CONV = Checker(
-    expected=layers.conv2d, cases=_conv_cases, package=(layers.conv2d, network.conv2d_reference),
+    expected=layers.conv2d, cases=_conv_cases, package=(layers.conv2d, reference.conv2d_reference),
     out=Out("array", "your output", ("image", "row", "column", "channel")),
     mistakes=(
         Mistake("you did not pad: 'same' convolution pads k // 2 = {p} zeros on every side, so {H}x{W} images "

@@ -5,7 +5,7 @@ convolutions once their patches are rows: `oneshot.policy.conv`).
 Each primitive's vector-Jacobian product (VJP) is written with primitives of the same family, so every
 order of derivative works (MAML's second-order meta-gradient differentiates the network twice) while
 the recorded graph stays a few large nodes per layer. `oneshot.policy.layers` gathers them with the
-rest of the network's primitives; `network.forward_reference` is the same network in plain
+rest of the network's primitives; `reference.forward_reference` is the same network in plain
 `autograd.numpy`, and the tests prove the two equal (docs/network.md).
 """
 import numpy as np

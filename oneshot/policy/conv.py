@@ -5,7 +5,7 @@ differentiation (`conv`, `conv_dx`, `conv_dw`).
 
     conv2d(x, w, b, stride)    the layer: conv(x, w, b) = im2col(x) @ w + b, for the network
 
-`conv2d` is the same convolution as `network.conv2d_reference` (9 shifted slices and an einsum, to
+`conv2d` is the same convolution as `reference.conv2d_reference` (9 shifted slices and an einsum, to
 read); the tests prove them equal, values and gradients to second order (docs/network.md).
 
 Everything runs in the dtype of its inputs: float32 for training, float64 for gradient checks.

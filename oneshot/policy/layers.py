@@ -12,7 +12,7 @@ same family, so derivatives of every order work (MAML's second-order meta-gradie
 network twice) while the recorded graph stays a few large nodes per layer: written with
 autograd.numpy's small operations, one second-order meta-gradient records thousands of nodes, most of
 them bookkeeping inside autograd's own VJPs, each costing tens of microseconds of Python.
-`network.forward_reference` is the same network in plain `autograd.numpy`; the tests prove the two
+`reference.forward_reference` is the same network in plain `autograd.numpy`; the tests prove the two
 equal (docs/network.md; the speed-ups measured: docs/results.md).
 
 Everything runs in the dtype of its inputs: float32 for training, float64 for gradient checks.

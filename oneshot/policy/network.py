@@ -10,9 +10,10 @@ a small convolutional policy:
 Everything here is a pure function of an explicit parameter dict, so MAML (Section II) can
 differentiate the imitation loss through it twice. Two versions of the same network:
 
-    forward_reference   plain `autograd.numpy`, to read: a convolution is 9 shifted slices and an einsum
-    forward             the same numbers on the fast path: the layers of `oneshot.policy.layers`, autograd
-                        primitives that keep the graph of a second-order meta-gradient small
+    forward                       the fast path: the layers of `oneshot.policy.layers`, autograd primitives
+                                  that keep the graph of a second-order meta-gradient small
+    reference.forward_reference   the same numbers in plain `autograd.numpy`, to read: a convolution is 9
+                                  shifted slices and an einsum (`oneshot/policy/reference.py`)
 
 The tests prove the two equal, values and gradients. Everything runs in the dtype of the parameters:
 float32 for training, float64 for gradient checks.
@@ -25,7 +26,6 @@ import numpy as np
 from oneshot.policy import inputs
 from oneshot.policy.layers import (add_bias, concat_last, conv2d, conv_output_size, layer_norm, matmul, per_frame,
                                    relu, spatial_soft_argmax)
-from oneshot.policy.norm import layer_norm_reference
 
 STRIDE = 2   # every convolution halves the image side (MIL: stride 2)
 
@@ -232,7 +232,7 @@ def predict_tasks(params, images, states):
 
 def forward(params, images, states):
     """The network on the fast path, without input checks (the hot path of `predict` and
-    `predict_tasks`): the same numbers as `forward_reference`, built from `oneshot.policy.layers`.
+    `predict_tasks`): the same numbers as `reference.forward_reference`, built from `oneshot.policy.layers`.
 
     images: (..., T, H, W, 3) float in [0, 1], states: (..., T, state_dim) -> (..., T, action_dim)
     in network units, where the optional leading task axis matches that of any per-task parameter.
@@ -266,58 +266,3 @@ def head(params, h):
         h = relu(add_bias(matmul(h, params[f"fc{i}_w"]), params[f"fc{i}_b"]))
         i += 1
     return add_bias(matmul(h, params["out_w"]), params["out_b"])
-
-
-# ----------------------------------------------------------------------------------------------------
-# The same network in plain autograd.numpy, to read (and to check `forward` against)
-# ----------------------------------------------------------------------------------------------------
-
-
-def conv2d_reference(x, w, b, stride=STRIDE):
-    """'Same'-padded strided convolution (cross-correlation, as in TensorFlow), in plain autograd.numpy.
-
-    x: (N, H, W, C_in), w: (k, k, C_in, C_out), b: (C_out,) -> (N, H_out, W_out, C_out):
-        y[n, i, j, o] = b[o] + sum_{dy, dx, c} x_pad[n, stride*i + dy, stride*j + dx, c] w[dy, dx, c, o]
-    One shifted, strided slice of the zero-padded image per kernel tap (9 for 3x3), then an einsum.
-    """
-    k = w.shape[0]
-    n, h, width, c_in = x.shape
-    h_out, w_out = conv_output_size(h, k, stride), conv_output_size(width, k, stride)
-    x_pad = anp.pad(x, ((0, 0), (k // 2, k // 2), (k // 2, k // 2), (0, 0)), mode="constant")
-    taps = [x_pad[:, dy : dy + stride * h_out : stride, dx : dx + stride * w_out : stride]
-            for dy in range(k) for dx in range(k)]                  # k * k of (N, H_out, W_out, C_in)
-    patches = anp.stack(taps, axis=3)                               # (N, H_out, W_out, k * k, C_in)
-    return anp.einsum("nijtc,tco->nijo", patches, anp.reshape(w, (k * k, c_in, -1))) + b
-
-
-def forward_reference(params, images, states):
-    """The policy in plain autograd.numpy, no custom primitives: what `forward` computes, to read.
-
-    params: dict from `init_params` (no task axis). images: (T, H, W, 3) float in [0, 1];
-    states: (T, state_dim) -> actions (T, action_dim), torques divided by the torque bound.
-    """
-    x, i = images, 0
-    while f"conv{i}_w" in params:                                   # (T, 32, 32, 3) -> ... -> (T, 4, 4, 40)
-        x = conv2d_reference(x, params[f"conv{i}_w"], params[f"conv{i}_b"])
-        if f"ln{i}_offset" in params:                               # normalise each frame's whole map
-            x = layer_norm_reference(x, params[f"ln{i}_offset"])    # (plain autograd.numpy too)
-        x = anp.maximum(x, 0.0)
-        i += 1
-    T, h, w, c = x.shape
-    if "fp_temperature" in params:                                  # feature points: (T, 2 * 40)
-        z = anp.reshape(x, (T, h * w, c)) * params["fp_temperature"]
-        p = anp.exp(z - anp.max(z, axis=1, keepdims=True))
-        p = p / anp.sum(p, axis=1, keepdims=True)                   # softmax over the H * W positions
-        xs = np.tile(np.linspace(-1, 1, w, dtype=states.dtype), h)[:, None]   # (H * W, 1) pixel x in [-1, 1]
-        ys = np.repeat(np.linspace(-1, 1, h, dtype=states.dtype), w)[:, None]  # (H * W, 1) pixel y
-        parts = [anp.sum(p * xs, axis=1), anp.sum(p * ys, axis=1)]  # expected (x, y) per channel
-    else:
-        parts = [anp.reshape(x, (T, h * w * c))]                    # flattened: (T, 4 * 4 * 40)
-    if "bias_transform" in params:                                  # the same learned vector every frame
-        parts.append(anp.ones((T, 1), states.dtype) * params["bias_transform"])
-    h = anp.concatenate(parts + [states], axis=1)                   # (T, n_in of fc0)
-    i = 0
-    while f"fc{i}_w" in params:                                     # 4 x (T, 100)
-        h = anp.maximum(anp.dot(h, params[f"fc{i}_w"]) + params[f"fc{i}_b"], 0.0)
-        i += 1
-    return anp.dot(h, params["out_w"]) + params["out_b"]            # (T, action_dim)

@@ -9,7 +9,7 @@ Per frame, over its H x W x C map of n values, with s = 1 / sqrt(var + eps):
     layer_norm    = normalise(x) + offset                            (offset per channel)
 
 Written with autograd.numpy's sums and divisions (`layer_norm_reference`, what the plain network
-`network.forward_reference` does), one layer norm records about a dozen nodes whose VJPs broadcast and
+`reference.forward_reference` does), one layer norm records about a dozen nodes whose VJPs broadcast and
 promote; in the released profile's meta-iteration that took about a third of the time (docs/results.md,
 "Speed"). The tests prove both give the same values and gradients to second order.
 """
