@@ -23,11 +23,12 @@ import dataclasses
 import os
 
 import numpy as np
+from tqdm import tqdm
 
 from oneshot import methods
 from oneshot.expert import controller
 from oneshot.maml import imitation
-from oneshot.tools import cli, viz
+from oneshot.tools import cli, host, viz
 from oneshot.training import checkpoint, fit_check
 from oneshot.world import palette
 from oneshot.training.scoring import wilson_interval
@@ -128,11 +129,22 @@ def main(argv=None):
     p.add_argument("--trials", type=cli.positive_int, default=3, help="new scenes per test colour (default 3)")
     p.add_argument("--seed", type=cli.non_negative_int, default=0, help="seed of the demos and trial scenes")
     args = p.parse_args(argv)
+    pictures = ("one_shot.png", "one_shot_trial.gif")
+    for name in pictures:                            # the outputs, checked before the work
+        try:
+            cli.writable_file(os.path.join(args.out, name))
+        except argparse.ArgumentTypeError as e:
+            p.error(f"argument --out: {e}")
+    host.blas_threads(1)       # small products: OpenBLAS's spinning threads only slow them (`oneshot.tools.host`)
     if args.checkpoint is not None:                  # a checkpoint asked for must be there
         ckpt = checkpoint.load(args.checkpoint)
     else:                                            # the shipped one may be missing: the demos alone
         args.checkpoint = PRETRAINED
         ckpt = checkpoint.load(PRETRAINED) if os.path.exists(PRETRAINED) else None
+    if ckpt is not None and not methods.of(ckpt["config"]).adapts:
+        raise ValueError(f"the demo shows a policy adapting to one demonstration (eq. 1); {args.checkpoint} holds "
+                         f"a {ckpt['config'].method!r} policy, which does not adapt: score it with "
+                         f"python -m oneshot.evaluate")
     # Demos like the ones the policy was meta-trained on (with the same DART noise, if any).
     expert_cfg = controller.ExpertConfig(action_noise=ckpt["config"].demo_noise if ckpt else 0.0)
 
@@ -142,7 +154,7 @@ def main(argv=None):
     colours = palette.split_colours(SPLIT, world.config.palette)
     print(f"1. The iLQG expert records ONE demonstration for each of the {len(colours)} {SPLIT} colours")
     demos = {}
-    for i, colour in enumerate(colours):
+    for i, colour in enumerate(tqdm(colours, desc="demonstrations", unit="demo", leave=False)):
         d = controller.demonstrate(world, seed=args.seed * 1000 + i, options={"target_colour": int(colour)},
                                cfg=expert_cfg)
         demos[int(colour)] = d
@@ -157,9 +169,6 @@ def main(argv=None):
         return None
     params, cfg = checkpoint.policy_params(ckpt), ckpt["config"]
     method = methods.of(cfg)
-    if not method.adapts:
-        raise ValueError(f"the demo shows a policy adapting to one demonstration (eq. 1); {args.checkpoint} holds "
-                         f"a {cfg.method!r} policy, which does not adapt: score it with python -m oneshot.evaluate")
     max_torque = world.config.arm.max_torque
 
     # 2-3. Adapt on the one demo, act in new scenes; the unadapted policy for contrast.
@@ -169,6 +178,7 @@ def main(argv=None):
     print(f"3. Run it in {args.trials} new scenes per colour (new positions, new distractors)")
     wins = base_wins = 0
     trials = {}                                            # (colour's position i, trial j) -> (adapted, unadapted)
+    bar = tqdm(total=len(demos) * args.trials, desc="trials", unit="trial", leave=False)
     for i, (colour, d) in enumerate(demos.items()):
         demo = imitation.prepare_demos(d["images"], d["states"], d["actions"], max_torque)
         adapted = method.conditioner(params)(demo)
@@ -178,6 +188,8 @@ def main(argv=None):
                             imitation.rollout(method.unadapted(params)(demo), world, seed, colour))   # unadapted
             wins += trials[i, j][0]["success"]
             base_wins += trials[i, j][1]["success"]
+            bar.update(1)
+    bar.close()
     n = len(demos) * args.trials
     lo, hi = wilson_interval(wins, n)
     print(f"\none-shot success on {SPLIT} colours: {wins}/{n} = {wins / n:.2f} (95% CI {lo:.2f}-{hi:.2f})")

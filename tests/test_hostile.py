@@ -473,6 +473,25 @@ def test_demo_refuses_bad_trials_and_an_unwritable_folder(capsys, tmp_path, argv
     assert f"argument {flag}" in line and out == ""
 
 
+def test_demo_checks_its_pictures_paths_before_the_work(capsys, tmp_path):
+    """A picture's path taken by a folder is refused before any demonstration is recorded (stdout empty)."""
+    (tmp_path / "one_shot_trial.gif").mkdir()
+    line, out = refused(capsys, demo.main, ["--out", str(tmp_path)])
+    assert "argument --out" in line and "one_shot_trial.gif" in line and "folder" in line
+    assert out == "" and [p.name for p in tmp_path.iterdir()] == ["one_shot_trial.gif"]   # no one_shot.png
+
+
+def test_demo_refuses_a_policy_that_does_not_adapt_before_the_demonstrations(capsys, tmp_path):
+    path = tmp_path / "random.npz"
+    cfg, rng = dataclasses.replace(config.PROFILES["smoke"], method="random"), np.random.default_rng(0)
+    net_cfg = methods.of(cfg).network_config(8)
+    params = methods.of(cfg).init_params(net_cfg, rng)
+    checkpoint.save(path, params, optim.adam_init(params), 0, rng, cfg, net_cfg)
+    line, out = refused(capsys, demo.main, ["--checkpoint", str(path), "--out", str(tmp_path / "out")])
+    assert "'random' policy, which does not adapt" in line and "oneshot.evaluate" in line
+    assert out == ""                                              # no expert demos recorded first
+
+
 # --- 11. collect --out, --noise, --seed ------------------------------------------------------------------
 
 @pytest.mark.parametrize("where", ["folder", "under a file"])
