@@ -75,6 +75,12 @@ def main(argv=None):
         method = methods.of(cfg)
     except ValueError as e:
         p.error(f"{e} (--alpha >= 0, --inner-steps >= 0)")
+    if args.json:
+        try:
+            cli.not_an_input(args.json, [args.checkpoint] + [run_data.spec(cfg, split)[0] for split in FLAGS],
+                             "--json", "a file this command reads")
+        except ValueError as e:
+            p.error(f"argument {e}")
     if args.demo_scenes and args.trials < 2:
         p.error(f"--demo-scenes needs --trials >= 2 (trial j acts in another demo's scene); got {args.trials}")
     if args.unadapted and not method.adapts:

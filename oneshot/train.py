@@ -110,6 +110,11 @@ def main(argv=None):
     if method.describe():
         print(method.describe())
     host.tune_malloc()
+    # One BLAS thread, in this process as in every shard (`oneshot.tools.host`): the products are small, so
+    # a second thread gains at most a few percent on idle cores (default profile on one process: 0.0454 s
+    # against 0.0437-0.0476 s), while with other work on the machine its spinning made the smoke profile's
+    # iterations 65x slower (4.6 s against 0.07 s).
+    host.blas_threads(1)
     t0 = time.perf_counter()
     previous = signal.signal(signal.SIGTERM, _terminate)    # a plain kill stops training as Ctrl-C does
     try:

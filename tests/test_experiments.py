@@ -553,6 +553,11 @@ def test_a_finished_run_ships_as_a_policy_that_scores_what_its_row_says(tmp_path
     assert not os.path.exists("policy.npz")
     spec = max((r for r in plan(TINY) if r.method == "mil-conv0" and r.seed == 0), key=lambda r: r.size)
     row = sweeping.execute(fig2.run_one, spec, os.path.abspath(os.path.join("w", spec.run_id)), run_context(TINY, "d"))
+    own = os.path.join("w", spec.run_id, "checkpoint.npz")
+    before = open(own, "rb").read()
+    with pytest.raises(SystemExit) as e:                     # --out onto the run's own checkpoint: refused
+        cli.run(command.main, [*ship[:-1], own])
+    assert e.value.code == 2 and "would overwrite" in capsys.readouterr().err and open(own, "rb").read() == before
     assert command.main(ship) == 0
     run, shipped = checkpoint.load(os.path.join("w", spec.run_id, "checkpoint.npz")), checkpoint.load("policy.npz")
     assert all(np.array_equal(run["params"][k], shipped["params"][k]) for k in run["params"])

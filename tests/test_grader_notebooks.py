@@ -14,6 +14,7 @@ import pytest
 
 from oneshot.exercises import EXERCISES, solutions
 from oneshot.exercises import __main__ as cli_main
+from oneshot.tools import cli
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks" / "exercises"
 WRONG_8 = """def contextual_input(images, demo_images):
@@ -140,4 +141,9 @@ def test_the_gradebook_is_written_through_links_and_never_to_a_device(tmp_path):
     for bad in ("/dev/null", str(tmp_path)):
         with pytest.raises(SystemExit):
             cli_main.main(["grade", str(tmp_path), "--csv", bad])
+    (tmp_path / "alice.py").write_text("x = 1\n")                 # a gradebook onto a submission: refused
+    for flag in ("--csv", "--json"):
+        with pytest.raises(SystemExit) as e:
+            cli.run(cli_main.main, ["grade", str(tmp_path), flag, str(tmp_path / "alice.py")])
+        assert e.value.code == 2 and (tmp_path / "alice.py").read_text() == "x = 1\n"
     assert stat.S_ISCHR(os.stat(os.devnull).st_mode)                 # still the device

@@ -184,6 +184,25 @@ def test_evaluate_checks_the_json_path_before_any_work(capsys, tmp_path, where):
     assert [p.name for p in tmp_path.iterdir()] == ["file"]
 
 
+def test_evaluate_refuses_a_json_path_that_is_one_of_its_inputs(capsys, tmp_path, tiny_checkpoint):
+    """--json onto the checkpoint, or onto a dataset it reads (also through a link), would destroy it: refused
+    in one line before anything is read, the file untouched."""
+    ckpt = tmp_path / "c.npz"
+    ckpt.write_bytes(pathlib.Path(tiny_checkpoint).read_bytes())
+    (tmp_path / "v.npz").write_bytes(b"a dataset")
+    (tmp_path / "link.json").symlink_to(tmp_path / "v.npz")
+    for json_path, named in ((ckpt, ckpt), (tmp_path / "v.npz", tmp_path / "v.npz"),
+                             (tmp_path / "link.json", tmp_path / "v.npz")):
+        before = named.read_bytes()
+        line, out = refused(capsys, evaluate.main, [str(ckpt), "--validation", str(tmp_path / "v.npz"),
+                                                    "--json", str(json_path)])
+        assert f"argument --json {json_path} would overwrite" in line and "a file this command reads" in line
+        assert out == "" and named.read_bytes() == before
+    cli.not_an_input(str(tmp_path / "r.json"), [str(ckpt), None, ""], "--json")          # another file: fine
+    with pytest.raises(ValueError, match="would overwrite"):                              # inside an input folder
+        cli.not_an_input(str(tmp_path / "run" / "r.json"), [str(tmp_path / "run")], "--out")
+
+
 # --- 8. and 9. train's other arguments -------------------------------------------------------------------
 
 @pytest.mark.parametrize("iterations", ["0", "-1"])

@@ -132,4 +132,4 @@ def test_seeds_needs_two_results_and_keeps_its_inputs(tmp_path, capsys):
     assert "needs the results of two or more training seeds" in line
     before = (tmp_path / "b.json").read_text()
     line, _ = refused(capsys, command.main, ["seeds", a, b, "--out", b])
-    assert "is one of the results to pool" in line and (tmp_path / "b.json").read_text() == before
+    assert "would overwrite" in line and "one of the results to pool" in line and (tmp_path / "b.json").read_text() == before

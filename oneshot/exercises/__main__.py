@@ -98,6 +98,9 @@ def _grade(args):
         found = submissions(args.dir)
     except SubmissionError as e:
         return _bad(str(e))
+    for flag, path in (("--csv", args.csv), ("--json", args.json)):
+        if path:
+            cli.not_an_input(path, found, flag, "a submission")
     jobs = min(args.jobs or os.cpu_count() or 1, len(found))
     cli.check_memory(jobs * (args.memory + _BASELINE_MB) << 20,
                      f"{jobs} submissions at once (--jobs) x --memory {args.memory} MB (+{_BASELINE_MB} MB each "

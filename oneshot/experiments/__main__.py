@@ -249,8 +249,8 @@ def _summarise(folder, argv):
 
 def _seeds(paths, out, argv):
     """Print (and with --out write) the pooled evaluate results of one recipe's seeds (`pool_evaluations`)."""
-    if out and any(os.path.realpath(out) == os.path.realpath(path) for path in paths):
-        raise ValueError(f"--out {out} is one of the results to pool; name another file for the summary")
+    if out:
+        cli.not_an_input(out, paths, "--out", "one of the results to pool")
     results = []
     for path in paths:
         with files.open_read(path, "r") as f:

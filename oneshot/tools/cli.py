@@ -109,6 +109,16 @@ def writable_folder(path):
     return path
 
 
+def not_an_input(out, inputs, flag, what="an input of this command"):
+    """Raise ValueError if the output path `out` (given with `flag`) is one of the paths `inputs`, or lies
+    inside one of them (a folder), links followed: writing it would destroy what the command reads.
+    Empty or None inputs are skipped."""
+    real = os.path.realpath(out)
+    for path in inputs:
+        if path and (real == os.path.realpath(path) or real.startswith(os.path.realpath(path) + os.sep)):
+            raise ValueError(f"{flag} {out} would overwrite {path}, {what}; name another file for {flag}")
+
+
 def _check_folder(folder, path):
     """Raise ArgumentTypeError unless `folder` is, or can be created as, a folder that takes new files."""
     existing = folder
