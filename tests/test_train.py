@@ -9,13 +9,15 @@ import os
 import numpy as np
 import pytest
 
-from oneshot.data import datasets
+from oneshot.data import collection, datasets
+from oneshot.expert.controller import ExpertConfig
 from oneshot.maml import batched, imitation, inner, optim
 from oneshot.policy import network
 from oneshot.training import checkpoint, config, run_folder, scoring
 from oneshot import evaluate
 from oneshot.methods.mil import INNER_PARAMS, inner_loop
 from oneshot.training import loop
+from oneshot.world.reach import WorldConfig
 from test_checkpoint import _set, rewrite
 
 
@@ -28,6 +30,20 @@ def tiny(tiny_split_datasets):
 
 def _same(p, q):
     return set(p) == set(q) and all(np.array_equal(p[k], q[k]) for k in p)
+
+
+@pytest.mark.parametrize("world, says", [({"image_size": 16}, "holds 32x32 images but"),
+                                         ({"horizon": 12}, "holds 20-step demos but")])
+def test_a_fresh_run_refuses_validation_data_of_another_world(tiny, tmp_path, world, says):
+    """Validation data of another image size or horizon than the meta-training data is refused before the
+    first iteration (it would fail at the first validation check, or score the policy in another world)."""
+    other = str(tmp_path / "validation_other.npz")
+    datasets.save(collection.collect(2, 2, "validation", seed=1, workers=1, progress=False,
+                                     world_cfg=WorldConfig(**world), expert_cfg=ExpertConfig(action_noise=tiny.demo_noise)),
+                  other)
+    with pytest.raises(checkpoint.CheckpointError, match=f"{tiny.train_data} {says} {other} holds"):
+        run_folder.train(dataclasses.replace(tiny, validation_data=other), tmp_path / "run", progress=False)
+    assert not (tmp_path / "run" / "checkpoint.npz").exists()
 
 
 def test_checkpoint_round_trip(tiny, tmp_path):

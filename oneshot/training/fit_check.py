@@ -1,5 +1,6 @@
 """Whether a dataset is one a checkpoint's policy can run on: the images it was trained on, its horizon,
-state layout, torque bound and palette (`check_data`); and the world a checkpoint's policy acts in.
+state layout, torque bound and palette (`check_data`); that two datasets are of one world
+(`check_same_world`); and the world a checkpoint's policy acts in.
 
     ckpt = checkpoint.load(path)
     fit_check.check_data(ckpt, datasets.load(data_path)["metadata"], path, data_path)   # or CheckpointError
@@ -37,22 +38,37 @@ def check_data(ckpt, metadata, ckpt_path, data_path, palette=True):
     trained = ckpt["world"]
     mine = world_fields(trained, f"{ckpt_path}: meta 'world'") if trained is not None else \
         {"image_size": ckpt["network"].image_size}
+    _compare(mine, ckpt["state_layout"], metadata, f"{ckpt_path} was trained on", data_path, palette)
+
+
+def check_same_world(reference, metadata, reference_path, data_path):
+    """Raise CheckpointError unless two datasets (their metadata) were collected in the same world: image
+    size, horizon, state layout, torque bound and palette (`check_data`'s checks). A fresh run checks its
+    validation data against its meta-training data, before training on them."""
+    mine = world_fields(reference["world"], f"{reference_path}: metadata 'world'")
+    _compare(mine, reference.get("state_layout"), metadata, f"{reference_path} holds", data_path, True)
+
+
+def _compare(mine, layout, metadata, subject, data_path, palette):
+    """check_data's comparisons of `mine` (world_fields; only "image_size" for an old checkpoint) and
+    `layout` (a state layout or None) with a dataset's metadata; `subject` opens the message ("X was
+    trained on", "X holds")."""
     remake = "re-create it with `python -m oneshot.collect`"
     if not isinstance(metadata.get("world"), dict):
         raise CheckpointError(f"{data_path} records no world config in its metadata; {remake}")
     theirs = world_fields(metadata["world"], f"{data_path}: metadata 'world'", remake)
 
     def refuse(was, holds, fix):
-        raise CheckpointError(f"{ckpt_path} was trained on {was} but {data_path} holds {holds}; {fix}")
+        raise CheckpointError(f"{subject} {was} but {data_path} holds {holds}; {fix}")
 
     a, b = mine["image_size"], theirs["image_size"]
     if a != b:
         refuse(f"{a}x{a} images", f"{b}x{b} images", f"use data collected with --image-size {a}")
-    a, b = ckpt["state_layout"], metadata.get("state_layout")
+    a, b = layout, metadata.get("state_layout")
     if a is not None and b is not None and _plain(a) != _plain(b):
         refuse(f"states laid out as {a}", f"states laid out as {b}",
                "use data collected by the oneshot that trained it, or re-train on this data")
-    if trained is None:
+    if "horizon" not in mine:                    # an old checkpoint: its image size is all it records
         return
     a, b = mine["horizon"], theirs["horizon"]
     if a != b:
@@ -71,5 +87,3 @@ def check_data(ckpt, metadata, ckpt_path, data_path, palette=True):
             refuse(f"the {a.mode!r} palette", f"the {b.mode!r} palette", fix)
         refuse(f"the {a.mode!r} palette with {field} {getattr(a, field)}",
                f"the {b.mode!r} palette with {field} {getattr(b, field)}", fix)
-
-

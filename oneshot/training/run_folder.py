@@ -117,6 +117,8 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
     else:
         if os.path.exists(ckpt_path):
             raise FileExistsError(f"{run_dir!r} already holds a run; use --resume, or another --run folder")
+        fit_check.check_same_world(train_set["metadata"], validation_set["metadata"], cfg.train_data,
+                                   cfg.validation_data)   # its checks (and the random policy's fit) act in it
         net_cfg = method.network_config(train_set["images"].shape[-2])
         state, before = loop.start(method, net_cfg, cfg.seed, ema=cfg.ema > 0 and method.learns), 0.0
         files.open_write(log_path, "w").close()
