@@ -131,7 +131,7 @@ def test_a_layer_norm_run_saved_before_its_offsets_started_at_zero_scores_but_do
     (tmp_path / "run").mkdir()
     os.replace(tmp_path / "before.npz", tmp_path / "run" / "checkpoint.npz")
     with pytest.raises(ValueError, match="began with random layer-norm offsets .* start a new run folder"):
-        run_folder._resume(cfg, str(tmp_path / "run" / "checkpoint.npz"), str(tmp_path / "run" / "log.jsonl"))
+        run_folder._resumable(cfg, str(tmp_path / "run" / "checkpoint.npz"))
 
 
 def test_an_old_style_checkpoint_loads_and_is_checked_by_its_network_image_size(tmp_path):

@@ -407,13 +407,14 @@ def test_the_shipped_policy_refuses_64x64_data(capsys, tmp_path):
 
 
 def test_resume_refuses_a_training_set_replaced_by_another_image_size(tmp_path, tiny_cfg):
-    run = tmp_path / "run"
-    run_folder.train(dataclasses.replace(tiny_cfg, iterations=1), run, progress=False)
-    other = tmp_path / "train16.npz"
-    datasets.save(collection.collect(3, 3, "train", 0, 1, WorldConfig(image_size=16, horizon=8),
-                                     ExpertConfig(action_noise=0.1), progress=False), other)
+    run, data = tmp_path / "run", tmp_path / "train16.npz"
+    data.write_bytes(pathlib.Path(tiny_cfg.train_data).read_bytes())
+    cfg = dataclasses.replace(tiny_cfg, train_data=str(data))
+    run_folder.train(dataclasses.replace(cfg, iterations=1), run, progress=False)
+    datasets.save(collection.collect(3, 3, "train", 0, 1, WorldConfig(image_size=16, horizon=8),   # replaced
+                                     ExpertConfig(action_noise=0.1), progress=False), data)
     with pytest.raises(checkpoint.CheckpointError, match="trained on 32x32 images but .*train16.npz holds 16x16"):
-        run_folder.train(dataclasses.replace(tiny_cfg, train_data=str(other)), run, resume=True, progress=False)
+        run_folder.train(cfg, run, resume=True, progress=False)
 
 
 @pytest.mark.parametrize("change, says", [

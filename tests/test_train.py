@@ -46,6 +46,14 @@ def test_a_fresh_run_refuses_validation_data_of_another_world(tiny, tmp_path, wo
     assert not (tmp_path / "run" / "checkpoint.npz").exists()
 
 
+def test_a_resume_with_another_config_is_refused_before_any_data_is_collected(tiny, tmp_path):
+    run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
+    other = dataclasses.replace(tiny, iterations=4, meta_batch=3, train_data=str(tmp_path / "missing.npz"))
+    with pytest.raises(ValueError, match="was trained with a different config .*meta_batch: checkpoint 2, now 3"):
+        run_folder.train(other, tmp_path / "run", resume=True, progress=False)
+    assert not (tmp_path / "missing.npz").exists()                 # nothing collected for a run it refuses
+
+
 def test_checkpoint_round_trip(tiny, tmp_path):
     params = run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
     ckpt = checkpoint.load(tmp_path / "run" / "checkpoint.npz")

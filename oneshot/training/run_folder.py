@@ -106,6 +106,7 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
 
 def _train(method, cfg, run_dir, resume, progress, stop_after):
     ckpt_path, log_path = os.path.join(run_dir, "checkpoint.npz"), os.path.join(run_dir, "log.jsonl")
+    ckpt = _resumable(cfg, ckpt_path) if resume else None    # before any data is collected for it
     # 1. Data: both splits, in network units (images in [0, 1], states and torques of order one).
     train_set, validation_set = run_data.ensure(cfg, progress=progress)
     train_set = run_data.subset(train_set, cfg.tasks, cfg.demos)
@@ -113,7 +114,7 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
 
     # 2. Parameters, optimiser and random state: fresh, or exactly as the checkpoint left them.
     if resume:
-        state, net_cfg, before = _resume(cfg, ckpt_path, log_path, train_set, validation_set)
+        state, net_cfg, before = _resume(ckpt, cfg, ckpt_path, log_path, train_set, validation_set)
     else:
         if os.path.exists(ckpt_path):
             raise FileExistsError(f"{run_dir!r} already holds a run; use --resume, or another --run folder")
@@ -168,16 +169,14 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
     return finished.params
 
 
-def _resume(cfg, ckpt_path, log_path, *data):
-    """(state, network config, meta-training seconds so far) from the run's checkpoint, after checking
-    that it was trained with this config (but RESUMABLE fields) on data like `data`."""
+def _resumable(cfg, ckpt_path):
+    """The run's checkpoint, checked to be one this config continues: trained with this config (but
+    RESUMABLE fields), from zero layer-norm offsets, and not past cfg.iterations."""
     ckpt = checkpoint.load(ckpt_path)
     if ckpt["ln_offsets_drawn"]:
         raise ValueError(f"{ckpt_path!r} began with random layer-norm offsets (saved before they started at "
                          f"zero, as in MIL's released code): resuming it would mix two initialisations; start a "
                          f"new run folder (the checkpoint still scores as it is)")
-    for dataset, path in zip(data, (cfg.train_data, cfg.validation_data)):
-        fit_check.check_data(ckpt, dataset["metadata"], ckpt_path, path)   # e.g. the file was replaced
     stored = dataclasses.replace(ckpt["config"], **{name: getattr(cfg, name) for name in RESUMABLE})
     if stored != cfg:
         differ = ", ".join(f"{f.name}: checkpoint {getattr(stored, f.name)!r}, now {getattr(cfg, f.name)!r}"
@@ -189,6 +188,15 @@ def _resume(cfg, ckpt_path, log_path, *data):
     if cfg.iterations < start:
         raise ValueError(f"{ckpt_path!r} is at iteration {start}, past --iterations {cfg.iterations}: nothing "
                          f"to train; resume with --iterations above {start}, or without --iterations")
+    return ckpt
+
+
+def _resume(ckpt, cfg, ckpt_path, log_path, *data):
+    """(state, network config, meta-training seconds so far) from the run's checkpoint (`_resumable`),
+    after checking that it was trained on data like `data`."""
+    for dataset, path in zip(data, (cfg.train_data, cfg.validation_data)):
+        fit_check.check_data(ckpt, dataset["metadata"], ckpt_path, path)   # e.g. the file was replaced
+    start = ckpt["iteration"]
     state = loop.State(ckpt["params"], ckpt["adam"], ckpt["ema"], start, ckpt["rng"].bit_generator.state)
     _truncate_log(log_path, start)
     if ckpt["config"].lr != cfg.lr:
