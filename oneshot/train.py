@@ -99,6 +99,12 @@ def main(argv=None):
                 cli.check_memory(cli.dataset_bytes(tasks, demos, world.horizon, world.image_size, world.n_objects),
                                  f"collecting the missing {path} ({tasks} tasks x {demos} demos)",
                                  f"use a smaller {flag}")
+        net_cfg = method.network_config(size)
+        method.check(net_cfg)                  # e.g. --never-adapt naming no parameter
+        cli.check_memory(method.memory_bytes(net_cfg),
+                         f"the {cfg.method} policy's {method.parameter_count(net_cfg):,} parameters (with their "
+                         f"gradient, Adam's moments and the moving average)",
+                         "use smaller --channels, --hidden, --bias-transform or --lstm-units")
         cli.check_memory(2 * cfg.meta_batch * frames * size * size * 3 * 4,
                          f"a meta-batch of {cfg.meta_batch} tasks (its {frames}-frame float32 images alone)",
                          f"use a smaller --meta-batch (the profile's: {PROFILES[profile].meta_batch})")

@@ -20,6 +20,7 @@ from oneshot.benchmark import __main__ as benchmark
 from oneshot.data import collection, datasets
 from oneshot.expert.controller import ExpertConfig
 from oneshot.maml import optim, shards
+from oneshot.policy import network
 from oneshot import methods
 from oneshot.methods.mil import MIL
 from oneshot.tools import cli
@@ -128,6 +129,32 @@ def test_train_refuses_a_meta_batch_larger_than_memory(capsys, tmp_path):
                                            "--validation-data", str(tmp_path / "heldout.npz")])
     assert f"a meta-batch of {HUGE} tasks" in line and "PB of memory" in line and "smaller --meta-batch" in line
     nothing_written(tmp_path)                                     # no dataset collected either
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["--hidden", "100000000,100000000"], "the mil policy's 10,000,065,000,030,002 parameters"),
+    (["--bias-transform", "100000000"], "the mil policy's"),
+    (["--method", "lstm", "--lstm-units", "1000000000"], "the lstm policy's")])
+def test_train_refuses_a_network_larger_than_memory(capsys, tmp_path, argv, says):
+    """Widths that cannot fit are refused in one line before any work (they were a MemoryError traceback,
+    or, for --channels, the OOM killer)."""
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), *argv,
+                                           "--train-data", str(tmp_path / "train.npz"),
+                                           "--validation-data", str(tmp_path / "heldout.npz")])
+    assert says in line and "B of memory, and" in line and "use smaller --channels, --hidden" in line
+    nothing_written(tmp_path)
+
+
+def test_train_refuses_a_never_adapt_prefix_that_names_no_parameter(capsys, tmp_path):
+    """A typo (conv_0 for conv0) would silently adapt every parameter: refused, naming the parameters."""
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), "--never-adapt",
+                                           "conv_0", "--train-data", str(tmp_path / "train.npz"),
+                                           "--validation-data", str(tmp_path / "heldout.npz")])
+    assert "never_adapt 'conv_0': no parameter's name starts with it" in line and "conv0_w, conv0_b" in line
+    nothing_written(tmp_path)
+    names = list(network.param_shapes(methods.of(config.PROFILES["released"]).network_config(32)))
+    methods.of(config.PROFILES["released"]).check(network.NetworkConfig(layer_norm=True))   # "ln" names ln0_offset...
+    assert [n for n in names if n.startswith("ln")] == ["ln0_offset", "ln1_offset", "ln2_offset"]
 
 
 # --- 6. evaluate ---------------------------------------------------------------------------------------
@@ -548,7 +575,9 @@ def test_collect_names_the_flag_of_a_bad_number(capsys, tmp_path, argv, expected
 @pytest.mark.parametrize("argv, expected", [
     (["expert", "--scenes", "0"], "argument --scenes: expected a whole number >= 1"),
     (["maml", "--iterations", "0"], "argument --iterations: expected a whole number >= 1"),
-    (["maml", "--profile", "bogus"], "argument --profile: invalid choice: 'bogus'")])
+    (["maml", "--profile", "bogus"], "argument --profile: invalid choice: 'bogus'"),
+    (["maml", "--method", "lstm", "--lstm-units", "1000000000"], "the lstm policy's 4,000,000,456,000,069,203 "
+                                                                  "parameters and what a meta-iteration keeps")])
 def test_benchmark_refuses_empty_runs_and_unknown_profiles(capsys, argv, expected):
     line, out = refused(capsys, benchmark.main, argv)
     assert expected in line and out == ""

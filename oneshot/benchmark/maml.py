@@ -12,7 +12,7 @@ import numpy as np
 
 from oneshot.benchmark import peers
 from oneshot import methods
-from oneshot.tools import host
+from oneshot.tools import cli, host
 from oneshot.experiments.lines import LINES
 from oneshot.training.config import PROFILES
 
@@ -42,6 +42,10 @@ def bench_setup(profile, image_size, **overrides):
     method = methods.of(dataclasses.replace(timed_config(profile), **overrides))
     rng = np.random.default_rng(0)
     net_cfg = method.network_config(image_size)
+    method.check(net_cfg)
+    cli.check_memory(method.memory_bytes(net_cfg), f"the {method.cfg.method} policy's "
+                     f"{method.parameter_count(net_cfg):,} parameters and what a meta-iteration keeps of them",
+                     "use a smaller --lstm-units")
     return method, net_cfg, method.init_params(net_cfg, rng), rng
 
 

@@ -12,6 +12,8 @@ a method's name. A method that is not trained by gradient (`learns = False`, the
 fitted by `fit` instead. Adding a method is one module with a subclass and one line in the registry
 (`oneshot.methods`).
 """
+import numpy as np
+
 from oneshot.policy import network
 from oneshot.policy.network import NetworkConfig
 
@@ -45,6 +47,15 @@ class Method:
 
     def check(self, net_cfg):
         """Raise ValueError if the config and the network cannot belong together (read checkpoints)."""
+
+    def parameter_count(self, net_cfg):
+        """How many numbers its parameters hold, counted from their shapes (nothing is allocated)."""
+        return sum(int(np.prod(shape)) for shape in network.param_shapes(net_cfg).values())
+
+    def memory_bytes(self, net_cfg):
+        """Bytes its meta-training holds at least, whatever the data and the meta-batch: float32
+        parameters, their gradient, Adam's two moments and the moving average."""
+        return 4 * self.parameter_count(net_cfg) * 5
 
     # --- meta-training ------------------------------------------------------------------------------
 

@@ -31,12 +31,19 @@ def lstm_init_params(net_cfg, units, rng, dtype=np.float32):
     state + action per demo frame. Gates in the order input, forget, cell, output; the forget gate's
     bias starts at 1 (remember by default)."""
     params = init_params(net_cfg, rng, dtype)
-    n_features = params["fc0_w"].shape[0] - net_cfg.state_dim
-    n_in = n_features + (net_cfg.state_dim - units) + net_cfg.action_dim
-    params["lstm_w"] = (rng.standard_normal((n_in + units, 4 * units)) / np.sqrt(n_in + units)).astype(dtype)
+    shape = lstm_weight_shape(net_cfg, units)
+    params["lstm_w"] = (rng.standard_normal(shape) / np.sqrt(shape[0])).astype(dtype)
     params["lstm_b"] = np.zeros(4 * units, dtype)
     params["lstm_b"][units:2 * units] = 1.0
     return params
+
+
+def lstm_weight_shape(net_cfg, units):
+    """lstm_w's shape, (n_in + units, 4 units): n_in = the trunk's features + the robot state + the action
+    of a demo frame, for net_cfg = `lstm_network_config(...)`."""
+    n_features = network.param_shapes(net_cfg)["fc0_w"][0] - net_cfg.state_dim
+    n_in = n_features + (net_cfg.state_dim - units) + net_cfg.action_dim
+    return n_in + units, 4 * units
 
 
 def lstm_step(w_h, xw, h, c):
@@ -101,6 +108,10 @@ class LSTM(Method):
 
     def init_params(self, net_cfg, rng):
         return lstm_init_params(net_cfg, self.cfg.lstm_units, rng)
+
+    def parameter_count(self, net_cfg):
+        rows, columns = lstm_weight_shape(net_cfg, self.cfg.lstm_units)
+        return super().parameter_count(net_cfg) + rows * columns + columns       # + lstm_w and lstm_b
 
     def check(self, net_cfg):
         if self.cfg.lstm_units > net_cfg.state_dim:           # the head's state includes the units

@@ -55,6 +55,14 @@ class MIL(Method):
             params.update(inner.init_step_sizes(params, self.cfg.alpha, self.inner.only, self.inner.frozen))
         return params
 
+    def check(self, net_cfg):
+        """never_adapt's prefixes must each name parameters of the network (a typo would adapt everything)."""
+        names = list(network.param_shapes(net_cfg))
+        unknown = [p for p in self.cfg.never_adapt if not any(name.startswith(p) for name in names)]
+        if unknown:
+            raise ValueError(f"never_adapt {', '.join(map(repr, unknown))}: no parameter's name starts with it; "
+                             f"the parameters are {', '.join(names)}")
+
     @property
     def shards(self):
         return self.cfg.shards

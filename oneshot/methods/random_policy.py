@@ -24,6 +24,9 @@ class RandomPolicy(Method):
     def init_params(self, net_cfg, rng):
         return {"std": np.array([self.cfg.random_stds[0]], np.float32)}
 
+    def parameter_count(self, net_cfg):
+        return 1
+
     def fit(self, params, dataset, trials, seed):
         """The best std of cfg.random_stds by one-shot success on `dataset` (`trials` per colour, scenes
         and torques from `seed`). Returns ({"std": (1,)}, {std: success rate})."""
