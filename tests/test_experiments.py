@@ -523,6 +523,21 @@ def test_the_two_level_interval_on_a_case_computed_by_hand():
         stats.interval(np.array([[3]]), np.array([[2]]))
 
 
+@pytest.mark.parametrize("folder, says", [("missing", "holds no runs.csv; name a sweep's results folder"),
+                                          ("damaged", "not a runs.csv row (it has 2 fields, not 13); name another "
+                                                      "results folder to compare with")])
+def test_a_compare_folder_is_checked_before_the_sweep(tmp_path, monkeypatch, capsys, folder, says):
+    monkeypatch.chdir(tmp_path)
+    os.makedirs("damaged")
+    with open(os.path.join("damaged", "runs.csv"), "w") as f:
+        f.write(",".join(COLUMNS) + "\nhello,world\n")
+    with pytest.raises(SystemExit) as e:
+        command.main(["fig2", "--profile", "tiny", "--no-progress", "--compare", folder])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "argument --compare: " in err and says in err
+    assert sorted(os.listdir(".")) == ["damaged"]                  # no data collected, no run, no results
+
+
 def test_compare_says_which_points_agree_within_their_interval():
     def rows(successes_by_seed):
         return [{"method": "mil-conv0", "size": 9, "colours": 3, "demos_per_colour": 3, "seed": seed, "iterations": 2,

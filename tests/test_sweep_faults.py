@@ -77,7 +77,9 @@ GOOD = "mil-conv0,9,3,3,0,2,1.0,1,4,0.25,0.05,0.7,{}"
 
 @pytest.mark.parametrize("text, says", [
     ("method,size\n" + GOOD + "\n", "columns"),
-    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD + "\n" + GOOD[:30] + "\n", "line 3: not a runs.csv row"),
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD + "\n" + GOOD[:30] + "\n",
+     r"line 3: not a runs.csv row \(it has 10 fields, not 13\)"),
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD + ",x,y\n", r"line 2: not a runs.csv row \(it has 15 fields, not 13\)"),
     (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace(",1,4,", ",5,4,") + "\n", "line 2: .*5 successes in 4 trials"),
     (",".join(sweep_rows.COLUMNS) + "\nhello,world\n", "line 2: not a runs.csv row"),
     (",".join(sweep_rows.COLUMNS) + '\n' + GOOD.replace("{}", '"{""per_colour"":{""1"":')[:-1] + "\n", "line 2"),

@@ -156,6 +156,14 @@ def main(argv=None):
             part += "_" + lines_part(chosen)
             seeds += f", {', '.join(chosen)}"
             cfg = dataclasses.replace(cfg, methods=tuple(chosen))
+    if args.compare:                           # before the sweep: a compare folder to read afterwards
+        if not os.path.isfile(os.path.join(args.compare, "runs.csv")):
+            f.error(f"argument --compare: {args.compare} holds no runs.csv; name a sweep's results folder, e.g. "
+                    f"results/fig2_{cfg.name}")
+        try:
+            read_rows(os.path.join(args.compare, "runs.csv"), fix="name another results folder to compare with")
+        except ValueError as e:
+            f.error(f"argument --compare: {e}")
     out = args.out or os.path.join("results", f"fig2_{cfg.name}")
     try:
         cli.writable_folder(out)
@@ -275,7 +283,7 @@ def _seeds(paths, out, argv):
 def _compare(rows, folder):
     """Print, point by point, whether a sweep's rows agree with the results in `folder` within their
     interval (`summary.compare`); 0 if every shared point agrees, 1 if any does not, 2 if none is shared."""
-    theirs = read_rows(os.path.join(folder, "runs.csv"))
+    theirs = read_rows(os.path.join(folder, "runs.csv"), fix="name another results folder to compare with")
     table = compare(rows, theirs)
     if not table:
         print(f"error: {folder} holds no point of this sweep (no runs.csv rows of its lines and sizes)", file=sys.stderr)

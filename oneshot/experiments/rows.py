@@ -75,22 +75,24 @@ def row_id(row):
     return RunSpec(row["method"], row["colours"], row["demos_per_colour"], row["seed"], row["iterations"]).run_id
 
 
-def read_rows(path):
+def read_rows(path, fix=None):
     """The rows of a runs.csv (typed: ints, floats, notes as its JSON string); [] if there is none.
     A damaged file (another header, a cut or bogus row, successes outside 0..trials, notes that are not
-    a whole JSON object) raises ValueError naming the file and the line."""
+    a whole JSON object) raises ValueError naming the file and the line, and what to do: `fix`, or for
+    a sweep's own file, how to start it afresh or run that line's run again."""
     if not os.path.exists(path):
         return []
     with open_read(path, "r", newline="") as f:
         reader = csv.DictReader(f)
         if tuple(reader.fieldnames or ()) != COLUMNS:
             raise ValueError(f"{path}: columns {reader.fieldnames} are not runs.csv's {list(COLUMNS)}; "
-                             f"move the file away to start the sweep afresh")
+                             f"{fix or 'move the file away to start the sweep afresh'}")
         rows = [(reader.line_num, row) for row in reader]
     for line, row in rows:
         try:
-            if None in row or None in row.values():
-                raise ValueError(f"it has {len(row) - (None in row)} fields, not {len(COLUMNS)}")
+            if None in row or None in row.values():     # DictReader: extra fields under None, missing ones None
+                fields = len(COLUMNS) + len(row[None]) if None in row else sum(v is not None for v in row.values())
+                raise ValueError(f"it has {fields} fields, not {len(COLUMNS)}")
             row.update({k: int(row[k]) for k in _INT_COLUMNS})
             row.update({k: float(row[k]) for k in _FLOAT_COLUMNS})
             if not 0 <= row["successes"] <= row["trials"] or row["trials"] < 1:
@@ -99,8 +101,8 @@ def read_rows(path):
                 raise ValueError("its notes are not a JSON object")
             row_id(row)
         except (ValueError, TypeError) as e:
-            raise ValueError(f"{path}, line {line}: not a runs.csv row ({e}); delete that line (its run is "
-                             f"then done again) or move the file away") from None
+            raise ValueError(f"{path}, line {line}: not a runs.csv row ({e}); "
+                             f"{fix or 'delete that line (its run is then done again) or move the file away'}") from None
     return [row for _, row in rows]
 
 
