@@ -360,6 +360,20 @@ def test_cli_summarise_redoes_a_finished_sweeps_summary_and_refuses_an_unfinishe
                                        f"summary; finish the sweep first (run its fig2 command again)\n")
 
 
+@pytest.mark.parametrize("text, says", [("[]", "is not a Figure 2 summary"), ('{"config": "x"}', "is not a Figure 2 summary"),
+                                         ('{"config": {"methods": 5}}', "is not a Figure 2 summary"),
+                                         ('{"config": {', "is not JSON")])
+def test_summarise_refuses_a_damaged_summary_in_one_line(tmp_path, capsys, text, says):
+    (tmp_path / "summary.json").write_text(text)
+    (tmp_path / "runs.csv").write_text(",".join(COLUMNS) + "\n")
+    with pytest.raises(SystemExit) as stop:
+        cli.run(command.main, ["summarise", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and err.count("\n") == 1 and "Traceback" not in err
+    assert f"{tmp_path / 'summary.json'} {says}" in err and "restore it (git checkout)" in err
+    assert (tmp_path / "summary.json").read_text() == text
+
+
 @pytest.mark.parametrize("argv, message", [
     (["fig2", "--profile", "tiny", "--seeds", "7"], "--seeds must be distinct seeds of the tiny profile, [0, 1]"),
     (["fig2", "--profile", "tiny", "--seeds", "0", "0"], "--seeds must be distinct"),

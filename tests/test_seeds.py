@@ -126,6 +126,12 @@ def test_seeds_refuses_counts_that_disagree_with_their_totals(tmp_path, capsys, 
     assert "b.json: its per-colour rates" in line and why.replace("(2/8)", "(8/8)") in line
 
 
+def test_seeds_names_a_missing_result_and_what_to_give(tmp_path, capsys):
+    a = _write(tmp_path / "a.json", seed=0)
+    line, _ = refused(capsys, command.main, ["seeds", a, str(tmp_path / "missing.json")])
+    assert f"no file {tmp_path / 'missing.json'}; name the JSON files of `python -m oneshot.evaluate" in line
+
+
 def test_seeds_needs_two_results_and_keeps_its_inputs(tmp_path, capsys):
     a, b = _write(tmp_path / "a.json", seed=0), _write(tmp_path / "b.json", seed=1)
     line, _ = refused(capsys, command.main, ["seeds", a])

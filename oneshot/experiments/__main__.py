@@ -261,6 +261,9 @@ def _seeds(paths, out, argv):
         cli.not_an_input(out, paths, "--out", "one of the results to pool")
     results = []
     for path in paths:
+        if not os.path.isfile(path):
+            raise FileNotFoundError(f"no file {path}; name the JSON files of `python -m oneshot.evaluate CHECKPOINT "
+                                    f"--json FILE`, one per training seed")
         with files.open_read(path, "r") as f:
             try:
                 results.append(files.loads_json(f.read()))

@@ -32,9 +32,19 @@ from oneshot.world.reach import WorldConfig
 
 def load_results(folder):
     """The results of a Figure 2 sweep in `folder` (e.g. results/fig2_paper): (rows of runs.csv,
-    summary.json as a dict)."""
-    with files.open_read(os.path.join(folder, "summary.json"), "r") as f:
-        return read_rows(os.path.join(folder, "runs.csv")), files.loads_json(f.read())
+    summary.json as a dict). A summary.json that is not JSON, or not a summary (an object whose config,
+    if any, is an object naming its lines in a list), raises ValueError naming the file."""
+    path = os.path.join(folder, "summary.json")
+    fix = "restore it (git checkout), or run the sweep's fig2 command again to write it"
+    with files.open_read(path, "r") as f:
+        try:
+            summary = files.loads_json(f.read())
+        except ValueError as e:
+            raise ValueError(f"{path} is not JSON ({e}); {fix}") from None
+    config = summary.get("config", {}) if isinstance(summary, dict) else None
+    if not isinstance(config, dict) or not isinstance(config.get("methods", []), list):
+        raise ValueError(f"{path} is not a Figure 2 summary (a JSON object whose config names its lines); {fix}")
+    return read_rows(os.path.join(folder, "runs.csv")), summary
 
 
 CONTINUED = "CONTINUED"   # in a LONGER run's folder: the run id it continued (`_continue_shorter`)
