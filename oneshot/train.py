@@ -26,7 +26,7 @@ from oneshot.policy.network import INITS
 from oneshot.tools import cli, host
 from oneshot.training import checkpoint, run_data
 from oneshot.training.config import PROFILES, TrainConfig
-from oneshot.training.run_folder import RESUMABLE, RunLocked, TrainingDiverged, train
+from oneshot.training.run_folder import RESUMABLE, RUN_FILES, RunLocked, TrainingDiverged, train
 from oneshot.world import palette
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
@@ -86,6 +86,14 @@ def main(argv=None):
             frames, size = int(recorded["horizon"]), int(recorded["image_size"])
         except Exception:                        # a damaged file: train() says what is wrong with it
             pass
+    data = {split: run_data.spec(cfg, split)[0] for split in ("train", "validation")}
+    if os.path.realpath(data["train"]) == os.path.realpath(data["validation"]):
+        p.error(f"argument --validation-data: {data['validation']} is also the meta-training data; the validation "
+                f"colours need a file of their own")
+    for split, path in data.items():         # the run writes these: a dataset there would be overwritten
+        if os.path.realpath(path) in {os.path.realpath(os.path.join(run, name)) for name in RUN_FILES}:
+            p.error(f"argument --{split}-data: {path} is one of the run's own files in --run {run}; keep datasets "
+                    f"outside them")
     try:
         for split in ("train", "validation"):
             path, demos, _ = run_data.spec(cfg, split)

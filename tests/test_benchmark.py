@@ -8,6 +8,8 @@ import sys
 import pytest
 
 from oneshot import methods
+from oneshot.benchmark import expert, privileged
+from oneshot.data import datasets
 from oneshot.experiments.lines import LINES
 
 
@@ -68,3 +70,21 @@ def test_maml_times_a_figure_2_line_as_its_sweep_trains_it():
                           (["--line", "random"], "argument --line: invalid choice: 'random'")):
         out = subprocess.run([sys.executable, "-m", "oneshot.benchmark", "maml", *argv], capture_output=True, text=True)
         assert out.returncode == 2 and message in out.stderr
+
+
+def test_collect_benchmark_takes_at_least_two_demos_per_colour(monkeypatch):
+    """--demos below two per training colour collects two per colour (a dataset needs two), not an error."""
+    asked = {}
+
+    def collect(tasks, per_task, split, seed, workers, progress):
+        asked.update(tasks=tasks, per_task=per_task)
+        raise KeyboardInterrupt                       # stop there: only what is asked for is under test
+    monkeypatch.setattr(expert.collection, "collect", collect)
+    with pytest.raises(KeyboardInterrupt):
+        expert.bench_collect(4, workers=1)
+    assert asked == {"tasks": 36, "per_task": 2}
+
+
+def test_privileged_benchmark_refuses_data_of_another_split(tiny_split_datasets):
+    with pytest.raises(datasets.DatasetError, match="holds validation colours, not meta-training colours"):
+        privileged.bench_privileged("colour", 1, trials=1, train_data=tiny_split_datasets["validation"])

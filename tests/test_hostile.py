@@ -157,6 +157,19 @@ def test_train_refuses_a_never_adapt_prefix_that_names_no_parameter(capsys, tmp_
     assert [n for n in names if n.startswith("ln")] == ["ln0_offset", "ln1_offset", "ln2_offset"]
 
 
+@pytest.mark.parametrize("where", ["the validation data", "the run's log"])
+def test_train_refuses_a_dataset_path_it_would_overwrite_or_reuse(capsys, tmp_path, where):
+    """The same file for meta-training and validation, or a dataset at one of the run's own files: refused
+    before any demonstration is collected."""
+    run = tmp_path / "run"
+    train_data = tmp_path / "same.npz" if where == "the validation data" else run / "log.jsonl"
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(run), "--train-data", str(train_data),
+                                           "--validation-data", str(tmp_path / "same.npz")])
+    assert ("is also the meta-training data" if where == "the validation data" else
+            f"argument --train-data: {train_data} is one of the run's own files") in line
+    nothing_written(tmp_path)
+
+
 # --- 6. evaluate ---------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("trials", ["0", "-3"])

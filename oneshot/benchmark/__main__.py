@@ -42,7 +42,7 @@ def main(argv=None):
     e.add_argument("--scenes", type=cli.positive_int, default=500,
                    help="random scenes to plan and run the expert in (default 500)")
     c = sub.add_parser("collect", help="time to collect demonstrations")
-    c.add_argument("--demos", type=cli.positive_int, default=1000, help="demonstrations to collect (default 1000)")
+    c.add_argument("--demos", type=cli.positive_int, default=1000, help="demonstrations to collect (default 1000; at least 2 per training colour are)")
     c.add_argument("--workers", type=cli.positive_int, default=None, help="processes (default and at most: the cores)")
     m = sub.add_parser("maml", help="seconds per second-order meta-iteration")
     m.add_argument("--iterations", type=cli.positive_int, default=20,

@@ -30,9 +30,10 @@ def bench_expert(scenes=500, seed=0):
 
 
 def bench_collect(demos=1000, workers=None):
-    """Wall time to collect about `demos` demonstrations (every training colour) with `workers` processes."""
+    """Wall time to collect about `demos` demonstrations (every training colour, at least 2 demos each, as a
+    dataset needs) with `workers` processes."""
     tasks = len(palette.split_colours("train"))
-    per_task = -(-demos // tasks)
+    per_task = max(2, -(-demos // tasks))
     t0 = time.perf_counter()
     d = collection.collect(tasks, per_task, "train", 0, workers, progress=True)
     seconds = time.perf_counter() - t0

@@ -30,6 +30,9 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
     if given not in ("position", "colour"):
         raise ValueError(f"given must be 'position' or 'colour'; got {given!r}")
     ds = datasets.load(train_data)
+    if ds["metadata"].get("split") != "train":        # else it would be scored on the colours it trained on
+        raise datasets.DatasetError(f"{train_data} holds {ds['metadata'].get('split')} colours, not meta-training "
+                                    f"colours; name a train split's dataset with --train-data")
     world_cfg = datasets.world_config(ds["metadata"])
     max_torque = world_cfg.arm.max_torque
     rgb = palette.palette_rgb(world_cfg.palette).astype(np.float32) / 255     # (colours, 3)

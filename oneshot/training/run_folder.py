@@ -27,6 +27,7 @@ from oneshot.training.loop import TrainingDiverged
 # Fields of TrainConfig a resume may change: how long, how often to log, evaluate and save, and the
 # step size (to retry a diverged run from its last good checkpoint with a smaller one). Anything else
 # would make the resumed run a different experiment.
+RUN_FILES = ("checkpoint.npz", "log.jsonl", ".lock")   # what a run folder holds (`train`)
 RESUMABLE = ("iterations", "log_every", "eval_every", "eval_trials", "checkpoint_every", "lr")
 
 
