@@ -287,7 +287,7 @@ def test_check_does_not_take_an_exit_for_success(tmp_path, how):
 
 
 @pytest.mark.parametrize("flag", [["--jobs", "-1"], ["--jobs", "0"], ["--timeout", "nan"], ["--timeout", "inf"],
-                                  ["--timeout", "-1"], ["--timeout", "0"]])
+                                  ["--timeout", "-1"], ["--timeout", "0"], ["--timeout", "1e19"], ["--timeout", "86401"]])
 def test_bad_grader_flags_are_one_line_errors(tmp_path, capsys, flag):
     (tmp_path / "alice.py").write_text(RIGHT_9)
     with pytest.raises(SystemExit) as stop:

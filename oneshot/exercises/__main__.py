@@ -28,14 +28,18 @@ from oneshot.tools import cli
 _BASELINE_MB = 300                 # what a sandbox maps before the submission runs (Python, NumPy, autograd)
 
 
+MAX_SECONDS = 86400.0   # a day: the sandbox's CPU and alarm limits take whole seconds, and far longer overflows them
+
+
 def seconds(text):
-    """An argparse type: a finite number of seconds > 0."""
+    """An argparse type: a number of seconds > 0 and at most MAX_SECONDS."""
     try:
         value = float(text)
     except ValueError:
         value = math.nan
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number of seconds > 0; got {text!r}")
+    if not (math.isfinite(value) and 0 < value <= MAX_SECONDS):
+        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0 and at most {MAX_SECONDS:g} (a day); "
+                                         f"got {text!r}")
     return value
 
 
