@@ -602,13 +602,22 @@ def test_benchmark_refuses_empty_runs_and_unknown_profiles(capsys, argv, expecte
                                            (datasets.DatasetError("damaged; re-create it"), 2),
                                            (FileExistsError("already holds a run; use --resume"), 2),
                                            (run_folder.TrainingDiverged("the meta-loss became nan"), 1),
-                                           (OSError(28, "No space left on device"), 1),
+                                           (OSError(5, "Input/output error"), 1),
                                            (KeyboardInterrupt(), 130)])
 def test_run_turns_each_kind_of_error_into_one_line_and_its_status(capsys, error, status):
     def main(argv):
         raise error
     line, _ = refused(capsys, main, [], status, failures=(run_folder.TrainingDiverged, shards.ShardError))
     assert line == "error: " + (str(error) or "interrupted")
+
+
+@pytest.mark.parametrize("filename", [None, "runs/x/checkpoint.npz"])
+def test_a_full_disk_is_named_with_what_to_do(capsys, filename):
+    def main(argv):
+        raise OSError(28, "No space left on device", filename)
+    line, _ = refused(capsys, main, [], 1)
+    assert line.startswith("error: the disk is full (no space left on device") and "free some space" in line
+    assert (f"for {filename!r}" in line) == (filename is not None)
 
 
 def test_run_keeps_the_traceback_of_a_bug():

@@ -11,6 +11,7 @@ The commands import this module; it imports no other part of oneshot than `files
 and writing).
 """
 import argparse
+import errno
 import math
 import os
 import signal
@@ -192,7 +193,8 @@ def run(main, argv=None, failures=()):
         2    ValueError (datasets.DatasetError, files.RefusedPath among them), FileNotFoundError, FileExistsError:
              bad input; the message says what and how to fix it
         1    the `failures` types (e.g. loop.TrainingDiverged, shards.ShardError) and other OSError;
-             lines after the first of their message (a worker's traceback) are printed after it
+             lines after the first of their message (a worker's traceback) are printed after it; a full
+             disk (ENOSPC) says so and what to do
         130  KeyboardInterrupt ("interrupted", or its message: e.g. where training saved its checkpoint);
              a plain kill (SIGTERM) is handled as Ctrl-C
     Anything else is a bug, and keeps its traceback.
@@ -204,7 +206,12 @@ def run(main, argv=None, failures=()):
         _exit(str(e) or "interrupted", 130)
     except BAD_INPUT as e:
         _exit(" ".join(_lines(e)), 2)
-    except (*failures, OSError) as e:
+    except OSError as e:
+        if e.errno == errno.ENOSPC and not isinstance(e, failures):   # say what to do, not just the errno
+            _exit(f"the disk is full (no space left on device{' for ' + repr(e.filename) if e.filename else ''}); "
+                  f"free some space, or write to another disk", 1)
+        _exit("\n".join(_lines(e)), 1)
+    except failures as e:
         _exit("\n".join(_lines(e)), 1)
     finally:
         signal.signal(signal.SIGTERM, previous)
