@@ -129,18 +129,17 @@ def main(argv=None):
     p.add_argument("--trials", type=cli.positive_int, default=3, help="new scenes per test colour (default 3)")
     p.add_argument("--seed", type=cli.non_negative_int, default=0, help="seed of the demos and trial scenes")
     args = p.parse_args(argv)
-    pictures = ("one_shot.png", "one_shot_trial.gif")
-    for name in pictures:                            # the outputs, checked before the work
-        try:
-            cli.writable_file(os.path.join(args.out, name))
-        except argparse.ArgumentTypeError as e:
-            p.error(f"argument --out: {e}")
-    host.blas_threads(1)       # small products: OpenBLAS's spinning threads only slow them (`oneshot.tools.host`)
     if args.checkpoint is not None:                  # a checkpoint asked for must be there
         ckpt = checkpoint.load(args.checkpoint)
     else:                                            # the shipped one may be missing: the demos alone
         args.checkpoint = PRETRAINED
         ckpt = checkpoint.load(PRETRAINED) if os.path.exists(PRETRAINED) else None
+    for name in ("one_shot.png", "one_shot_trial.gif") if ckpt else ("expert_demos.png",):
+        try:                                         # the pictures this run writes, checked before the work
+            cli.writable_file(os.path.join(args.out, name))
+        except argparse.ArgumentTypeError as e:
+            p.error(f"argument --out: {e}")
+    host.blas_threads(1)       # small products: OpenBLAS's spinning threads only slow them (`oneshot.tools.host`)
     if ckpt is not None and not methods.of(ckpt["config"]).adapts:
         raise ValueError(f"the demo shows a policy adapting to one demonstration (eq. 1); {args.checkpoint} holds "
                          f"a {ckpt['config'].method!r} policy, which does not adapt: score it with "

@@ -20,8 +20,9 @@ import time
 import numpy as np
 
 from oneshot import methods
-from oneshot.maml import shards
+from oneshot.maml import inner, shards
 from oneshot.methods.mil import INNER_PARAMS
+from oneshot.policy import network
 from oneshot.policy.network import INITS
 from oneshot.tools import cli, host
 from oneshot.training import checkpoint, run_data
@@ -88,12 +89,12 @@ def main(argv=None):
             pass
     data = {split: run_data.spec(cfg, split)[0] for split in ("train", "validation")}
     if os.path.realpath(data["train"]) == os.path.realpath(data["validation"]):
-        p.error(f"argument --validation-data: {data['validation']} is also the meta-training data; the validation "
-                f"colours need a file of their own")
+        p.error(f"the validation data {data['validation']} is also the meta-training data; the validation colours "
+                f"need a file of their own (--validation-data)")
     for split, path in data.items():         # the run writes these: a dataset there would be overwritten
         if os.path.realpath(path) in {os.path.realpath(os.path.join(run, name)) for name in RUN_FILES}:
-            p.error(f"argument --{split}-data: {path} is one of the run's own files in --run {run}; keep datasets "
-                    f"outside them")
+            p.error(f"the {split} data {path} is one of the run's own files in {run}; keep datasets outside "
+                    f"them (--{split}-data, or another --run)")
     try:
         for split in ("train", "validation"):
             path, demos, _ = run_data.spec(cfg, split)
@@ -108,7 +109,11 @@ def main(argv=None):
                                  f"collecting the missing {path} ({tasks} tasks x {demos} demos)",
                                  f"use a smaller {flag}")
         net_cfg = method.network_config(size)
-        method.check(net_cfg)                  # e.g. --never-adapt naming no parameter
+        method.check(net_cfg)
+        typos = inner.unmatched(network.param_shapes(net_cfg), overrides.get("never_adapt", ()))
+        if typos and method.adapts:            # a prefix naming no parameter would adapt everything
+            p.error(f"argument --never-adapt: {', '.join(map(repr, typos))} starts no parameter's name; the "
+                    f"parameters are {', '.join(network.param_shapes(net_cfg))} (--never-adapt '' for none)")
         cli.check_memory(method.memory_bytes(net_cfg),
                          f"the {cfg.method} policy's {method.parameter_count(net_cfg):,} parameters (with their "
                          f"gradient, Adam's moments and the moving average)",

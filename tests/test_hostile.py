@@ -19,7 +19,7 @@ from oneshot import demo
 from oneshot.benchmark import __main__ as benchmark
 from oneshot.data import collection, datasets
 from oneshot.expert.controller import ExpertConfig
-from oneshot.maml import optim, shards
+from oneshot.maml import inner, optim, shards
 from oneshot.policy import network
 from oneshot import methods
 from oneshot.methods.mil import MIL
@@ -146,15 +146,20 @@ def test_train_refuses_a_network_larger_than_memory(capsys, tmp_path, argv, says
 
 
 def test_train_refuses_a_never_adapt_prefix_that_names_no_parameter(capsys, tmp_path):
-    """A typo (conv_0 for conv0) would silently adapt every parameter: refused, naming the parameters."""
+    """A typo on the command line (conv_0 for conv0) would silently adapt every parameter: refused, naming
+    the parameters. A profile's own prefix that names nothing here (the released profile's "ln" without
+    layer norm) changes nothing and is not refused, nor is a checkpoint saved with one."""
     line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), "--never-adapt",
                                            "conv_0", "--train-data", str(tmp_path / "train.npz"),
                                            "--validation-data", str(tmp_path / "heldout.npz")])
-    assert "never_adapt 'conv_0': no parameter's name starts with it" in line and "conv0_w, conv0_b" in line
+    assert "argument --never-adapt: 'conv_0' starts no parameter's name" in line and "conv0_w, conv0_b" in line
     nothing_written(tmp_path)
-    names = list(network.param_shapes(methods.of(config.PROFILES["released"]).network_config(32)))
-    methods.of(config.PROFILES["released"]).check(network.NetworkConfig(layer_norm=True))   # "ln" names ln0_offset...
-    assert [n for n in names if n.startswith("ln")] == ["ln0_offset", "ln1_offset", "ln2_offset"]
+    assert inner.unmatched(["conv0_w", "ln0_offset"], ("ln", "conv_0", "conv0_")) == ["conv_0"]
+    cfg, rng = dataclasses.replace(config.PROFILES["smoke"], never_adapt=("ln",)), np.random.default_rng(0)
+    net_cfg = methods.of(cfg).network_config(8)
+    params = methods.of(cfg).init_params(net_cfg, rng)
+    checkpoint.save(tmp_path / "c.npz", params, optim.adam_init(params), 0, rng, cfg, net_cfg)
+    assert checkpoint.load(tmp_path / "c.npz")["config"].never_adapt == ("ln",)
 
 
 @pytest.mark.parametrize("where", ["the validation data", "the run's log"])
@@ -166,7 +171,7 @@ def test_train_refuses_a_dataset_path_it_would_overwrite_or_reuse(capsys, tmp_pa
     line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(run), "--train-data", str(train_data),
                                            "--validation-data", str(tmp_path / "same.npz")])
     assert ("is also the meta-training data" if where == "the validation data" else
-            f"argument --train-data: {train_data} is one of the run's own files") in line
+            f"the train data {train_data} is one of the run's own files") in line
     nothing_written(tmp_path)
 
 
@@ -239,7 +244,7 @@ def test_evaluate_refuses_a_json_path_that_is_one_of_its_inputs(capsys, tmp_path
         assert f"argument --json {json_path} would overwrite" in line and "a file this command reads" in line
         assert out == "" and named.read_bytes() == before
     cli.not_an_input(str(tmp_path / "r.json"), [str(ckpt), None, ""], "--json")          # another file: fine
-    with pytest.raises(ValueError, match="would overwrite"):                              # inside an input folder
+    with pytest.raises(ValueError, match="would write into"):                             # inside an input folder
         cli.not_an_input(str(tmp_path / "run" / "r.json"), [str(tmp_path / "run")], "--out")
 
 

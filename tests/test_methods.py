@@ -18,6 +18,7 @@ from oneshot.maml import batched, imitation, inner
 from oneshot.maml.inner import InnerLoop
 from oneshot.methods.base import Method
 from oneshot.policy import network
+from oneshot.experiments.lines import LINES
 from oneshot.training import checkpoint, config, run_folder
 
 
@@ -165,3 +166,15 @@ def test_the_released_inner_loop_options_differentiate_to_second_order_and_do_wh
     plain = inner.inner_update(params, demo, imitation.imitation_loss, alpha=0.03, steps=1)
     for k in params:
         np.testing.assert_allclose(scaled[k], plain[k], rtol=1e-12, atol=1e-15)
+
+
+def test_parameter_count_is_what_init_params_builds_for_every_profile_and_line():
+    """Counted from the shapes, without allocating (train and benchmark refuse too large a network with
+    it): every training profile, every Figure 2 line, and both with learnt step sizes (Meta-SGD)."""
+    configs = list(config.PROFILES.values()) + list(LINES.values())
+    configs += [dataclasses.replace(c, learn_alpha=True) for c in configs if c.method == "mil"]
+    for cfg in configs:
+        method = methods.of(cfg)
+        net_cfg = method.network_config(32)
+        built = method.init_params(net_cfg, np.random.default_rng(0))
+        assert method.parameter_count(net_cfg) == sum(v.size for v in built.values()), cfg

@@ -41,7 +41,8 @@ def test_a_fresh_run_refuses_validation_data_of_another_world(tiny, tmp_path, wo
     datasets.save(collection.collect(2, 2, "validation", seed=1, workers=1, progress=False,
                                      world_cfg=WorldConfig(**world), expert_cfg=ExpertConfig(action_noise=tiny.demo_noise)),
                   other)
-    with pytest.raises(checkpoint.CheckpointError, match=f"{tiny.train_data} {says} {other} holds"):
+    with pytest.raises(datasets.DatasetError, match=f"{tiny.train_data} {says} {other} holds .*; collect {other} in "
+                                                    f"the meta-training data's world"):
         run_folder.train(dataclasses.replace(tiny, validation_data=other), tmp_path / "run", progress=False)
     assert not (tmp_path / "run" / "checkpoint.npz").exists()
 
@@ -52,6 +53,14 @@ def test_a_resume_with_another_config_is_refused_before_any_data_is_collected(ti
     with pytest.raises(ValueError, match="was trained with a different config .*meta_batch: checkpoint 2, now 3"):
         run_folder.train(other, tmp_path / "run", resume=True, progress=False)
     assert not (tmp_path / "missing.npz").exists()                 # nothing collected for a run it refuses
+
+
+def test_a_fresh_run_into_a_folder_holding_a_run_is_refused_before_any_data_is_collected(tiny, tmp_path):
+    run_folder.train(dataclasses.replace(tiny, iterations=1), tmp_path / "run", progress=False)
+    with pytest.raises(FileExistsError, match="already holds a run; use --resume, or another --run folder"):
+        run_folder.train(dataclasses.replace(tiny, train_data=str(tmp_path / "missing.npz")), tmp_path / "run",
+                         progress=False)
+    assert not (tmp_path / "missing.npz").exists()
 
 
 def test_checkpoint_round_trip(tiny, tmp_path):

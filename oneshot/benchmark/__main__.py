@@ -42,7 +42,8 @@ def main(argv=None):
     e.add_argument("--scenes", type=cli.positive_int, default=500,
                    help="random scenes to plan and run the expert in (default 500)")
     c = sub.add_parser("collect", help="time to collect demonstrations")
-    c.add_argument("--demos", type=cli.positive_int, default=1000, help="demonstrations to collect (default 1000; at least 2 per training colour are)")
+    c.add_argument("--demos", type=cli.positive_int, default=1000, help="demonstrations to collect (default 1000; at least 2 per training "
+                                                                        "colour are collected)")
     c.add_argument("--workers", type=cli.positive_int, default=None, help="processes (default and at most: the cores)")
     m = sub.add_parser("maml", help="seconds per second-order meta-iteration")
     m.add_argument("--iterations", type=cli.positive_int, default=20,
@@ -67,8 +68,8 @@ def main(argv=None):
                    help="override the profile's (line's) shards (processes sharing each meta-gradient; "
                         "1 = one process)")
     m.add_argument("--blas-threads", type=cli.positive_int, default=None,
-                   help="BLAS threads of the training process (default: one per core with --shards 1, else 1; "
-                        "Figure 2's runs: --shards 1 --blas-threads 1)")
+                   help="BLAS threads of the training process (default 1, as training keeps; more to see what "
+                        "they would buy)")
     m.add_argument("--peer", choices=sorted(peers.PEERS), default=None,
                    help="time the same second-order meta-gradient in PyTorch or JAX instead of ours, on all the "
                         "cores (pip install -e .[peers]); run it and ours alternately to compare")
@@ -111,9 +112,8 @@ def main(argv=None):
                                        ("shards", args.shards), ("method", args.method),
                                        ("lstm_units", args.lstm_units)) if v is not None}
         timed = args.line or args.profile or "default"
-        if args.line:                        # as fig2 trains a line: one process of one BLAS thread
+        if args.line:                        # as fig2 trains a line: one process (of one BLAS thread)
             overrides.setdefault("shards", 1)
-            args.blas_threads = args.blas_threads or 1
         if args.breakdown:
             if args.peer:
                 m.error("--peer times whole meta-iterations; drop --breakdown")

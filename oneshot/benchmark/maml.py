@@ -58,9 +58,8 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
     the iterations. (Not between them: OpenBLAS's threads spin for a while after a product, and would
     take a core from the next iteration's other process.)
 
-    blas_threads: BLAS threads of this process (default: one per core with one process, as training;
-        with several processes each keeps one, `oneshot.maml.shards`). Figure 2's runs: shards=1,
-        blas_threads=1.
+    blas_threads: BLAS threads of this process (default 1, as every training process keeps: `train`,
+        each shard of `oneshot.maml.shards`, Figure 2's runs); more, to see what they would buy.
     peer: None, or "torch" or "jax": time the same meta-gradient in that library (`peers`) instead of
         ours, on all the cores. (Not alternately in one process: each one's threads spin for a while
         after its work and slow the other down; run the two commands alternately instead.)
@@ -71,7 +70,7 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
     if not method.learns:
         raise ValueError(f"the {cfg.method} policy has no meta-iteration to time")
     cores = os.cpu_count() or 1
-    threads = blas_threads or (1 if method.shards > 1 else cores)
+    threads = blas_threads or 1
     host.blas_threads(threads)
     ceiling_threads = min(cores, method.shards * threads)
     B, pool = cfg.meta_batch, None

@@ -43,9 +43,10 @@ from oneshot.experiments.lines import LABELS, LINES
 from oneshot import methods
 from oneshot.experiments.rows import read_rows
 from oneshot.experiments.ship import add_ship_command, run_ship_command
-from oneshot.experiments.summary import PLOTS, compare, plot, pool_evaluations, summarise, write_summary
+from oneshot.experiments.summary import (PLOTS, compare, plot, pool_evaluations, read_evaluations, summarise,
+                                        write_summary)
 from oneshot.experiments.sweep import SweepLocked, sweep
-from oneshot.tools import cli, files
+from oneshot.tools import cli
 
 # Optional extras: the sweep runs without them and says which one a flag or the plot needs.
 try:
@@ -259,17 +260,7 @@ def _seeds(paths, out, argv):
     """Print (and with --out write) the pooled evaluate results of one recipe's seeds (`pool_evaluations`)."""
     if out:
         cli.not_an_input(out, paths, "--out", "one of the results to pool")
-    results = []
-    for path in paths:
-        if not os.path.isfile(path):
-            raise FileNotFoundError(f"no file {path}; name the JSON files of `python -m oneshot.evaluate CHECKPOINT "
-                                    f"--json FILE`, one per training seed")
-        with files.open_read(path, "r") as f:
-            try:
-                results.append(files.loads_json(f.read()))
-            except ValueError as e:
-                raise ValueError(f"{path} is not JSON ({e}); name evaluate's --json files") from None
-    pooled = pool_evaluations(results, paths)
+    pooled = pool_evaluations(read_evaluations(paths), paths)
     pct = lambda x: f"{100 * x:.1f}%"
     for p in pooled["policies"]:
         print(f"training seed {p['training_seed']}: {pct(p['rate'])} ({p['successes']}/{p['trials']})  {p['file']}")

@@ -41,7 +41,7 @@ def load_results(folder):
             summary = files.loads_json(f.read())
         except ValueError as e:
             raise ValueError(f"{path} is not JSON ({e}); {fix}") from None
-    config = summary.get("config", {}) if isinstance(summary, dict) else None
+    config = (summary.get("config") or {}) if isinstance(summary, dict) else None     # none recorded: {}
     if not isinstance(config, dict) or not isinstance(config.get("methods", []), list):
         raise ValueError(f"{path} is not a Figure 2 summary (a JSON object whose config names its lines); {fix}")
     return read_rows(os.path.join(folder, "runs.csv")), summary

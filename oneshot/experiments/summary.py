@@ -7,10 +7,11 @@
 import dataclasses
 import json
 import math
+import os
 
 import numpy as np
 
-from oneshot.tools.files import atomic_write
+from oneshot.tools.files import atomic_write, loads_json, open_read
 from oneshot.experiments import stats
 
 try:
@@ -132,6 +133,22 @@ def _evaluation(result, name):
                          f"{len(colours)} colours) disagree with its totals ({row['successes']}/{row['trials']}); "
                          f"run evaluate again")
     return row
+
+
+def read_evaluations(paths):
+    """The results that `python -m oneshot.evaluate CHECKPOINT --json FILE` wrote, one file per path; a
+    missing file, or one that is not JSON, raises an error naming it and what to give instead."""
+    results = []
+    for path in paths:
+        if not os.path.isfile(path):
+            raise FileNotFoundError(f"no file {path}; name the JSON files of `python -m oneshot.evaluate CHECKPOINT "
+                                    f"--json FILE`, one per training seed")
+        with open_read(path, "r") as f:
+            try:
+                results.append(loads_json(f.read()))
+            except ValueError as e:
+                raise ValueError(f"{path} is not JSON ({e}); name evaluate's --json files") from None
+    return results
 
 
 def pool_evaluations(results, names):

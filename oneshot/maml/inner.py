@@ -62,6 +62,12 @@ def adapted_keys(params, only=None, frozen=()):
     return keys
 
 
+def unmatched(names, prefixes):
+    """The prefixes that no name starts with: a `frozen` or `only` prefix naming no parameter (a typo, say
+    conv_0 for conv0_) would silently change nothing."""
+    return [p for p in prefixes if not any(name.startswith(p) for name in names)]
+
+
 def init_step_sizes(params, alpha, only=None, frozen=()):
     """Learnt step sizes for Meta-SGD: {STEP_PREFIX + k: alpha everywhere, shaped like params[k]} for
     every key eq. (1) adapts. Add them to params to meta-learn one step size per adapted element."""

@@ -54,8 +54,8 @@ class Method:
 
     def memory_bytes(self, net_cfg):
         """Bytes its meta-training holds at least, whatever the data and the meta-batch: float32
-        parameters, their gradient, Adam's two moments and the moving average."""
-        return 4 * self.parameter_count(net_cfg) * 5
+        parameters, their gradient, Adam's two moments and (cfg.ema > 0) the moving average."""
+        return 4 * self.parameter_count(net_cfg) * (4 + (self.cfg.ema > 0))
 
     # --- meta-training ------------------------------------------------------------------------------
 

@@ -5,6 +5,8 @@ the second-order meta-gradient; at meta-test ONE demonstration makes the adapted
 Which parameters adapt, how many steps and how large are `TrainConfig` fields, gathered into one
 `inner.InnerLoop` that training and meta-test share.
 """
+import numpy as np
+
 from oneshot.maml import imitation, inner, shards
 from oneshot.maml.imitation import imitation_loss
 from oneshot.methods.base import Method
@@ -55,13 +57,11 @@ class MIL(Method):
             params.update(inner.init_step_sizes(params, self.cfg.alpha, self.inner.only, self.inner.frozen))
         return params
 
-    def check(self, net_cfg):
-        """never_adapt's prefixes must each name parameters of the network (a typo would adapt everything)."""
-        names = list(network.param_shapes(net_cfg))
-        unknown = [p for p in self.cfg.never_adapt if not any(name.startswith(p) for name in names)]
-        if unknown:
-            raise ValueError(f"never_adapt {', '.join(map(repr, unknown))}: no parameter's name starts with it; "
-                             f"the parameters are {', '.join(names)}")
+    def parameter_count(self, net_cfg):
+        """The network's parameters, and with cfg.learn_alpha one learnt step size per adapted number."""
+        shapes = network.param_shapes(net_cfg)
+        steps = inner.adapted_keys(shapes, self.inner.only, self.inner.frozen) if self.cfg.learn_alpha else []
+        return super().parameter_count(net_cfg) + sum(int(np.prod(shapes[k])) for k in steps)
 
     @property
     def shards(self):

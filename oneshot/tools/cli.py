@@ -116,8 +116,10 @@ def not_an_input(out, inputs, flag, what="an input of this command"):
     Empty or None inputs are skipped."""
     real = os.path.realpath(out)
     for path in inputs:
-        if path and (real == os.path.realpath(path) or real.startswith(os.path.realpath(path) + os.sep)):
+        if path and real == os.path.realpath(path):
             raise ValueError(f"{flag} {out} would overwrite {path}, {what}; name another file for {flag}")
+        if path and real.startswith(os.path.realpath(path) + os.sep):
+            raise ValueError(f"{flag} {out} would write into {path}, {what}; name a file outside it for {flag}")
 
 
 def _check_folder(folder, path):

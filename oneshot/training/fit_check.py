@@ -42,24 +42,28 @@ def check_data(ckpt, metadata, ckpt_path, data_path, palette=True):
 
 
 def check_same_world(reference, metadata, reference_path, data_path):
-    """Raise CheckpointError unless two datasets (their metadata) were collected in the same world: image
+    """Raise DatasetError unless two datasets (their metadata) were collected in the same world: image
     size, horizon, state layout, torque bound and palette (`check_data`'s checks). A fresh run checks its
     validation data against its meta-training data, before training on them."""
     mine = world_fields(reference["world"], f"{reference_path}: metadata 'world'")
-    _compare(mine, reference.get("state_layout"), metadata, f"{reference_path} holds", data_path, True)
+    _compare(mine, reference.get("state_layout"), metadata, f"{reference_path} holds", data_path, True,
+             same=f"collect {data_path} in the meta-training data's world (python -m oneshot.collect with the "
+                  f"same --image-size, --horizon and --palette), or name another file",
+             error=datasets.DatasetError)
 
 
-def _compare(mine, layout, metadata, subject, data_path, palette):
+def _compare(mine, layout, metadata, subject, data_path, palette, same=None, error=CheckpointError):
     """check_data's comparisons of `mine` (world_fields; only "image_size" for an old checkpoint) and
     `layout` (a state layout or None) with a dataset's metadata; `subject` opens the message ("X was
-    trained on", "X holds")."""
+    trained on", "X holds"). same: one fix for every difference, instead of each one's; error: the
+    exception raised."""
     remake = "re-create it with `python -m oneshot.collect`"
     if not isinstance(metadata.get("world"), dict):
-        raise CheckpointError(f"{data_path} records no world config in its metadata; {remake}")
+        raise error(f"{data_path} records no world config in its metadata; {remake}")
     theirs = world_fields(metadata["world"], f"{data_path}: metadata 'world'", remake)
 
     def refuse(was, holds, fix):
-        raise CheckpointError(f"{subject} {was} but {data_path} holds {holds}; {fix}")
+        raise error(f"{subject} {was} but {data_path} holds {holds}; {same or fix}")
 
     a, b = mine["image_size"], theirs["image_size"]
     if a != b:
@@ -75,8 +79,8 @@ def _compare(mine, layout, metadata, subject, data_path, palette):
         refuse(f"{a}-step demos", f"{b}-step demos", f"use data collected with --horizon {a}")
     a, b = mine["max_torque"], theirs["max_torque"]
     if a != b:
-        refuse(f"torques of at most {a} N m (its actions are divided by it)", f"torques of at most {b} N m",
-               f"use data recorded with an arm of max_torque {a}")
+        refuse(f"torques of at most {a} N m", f"torques of at most {b} N m",
+               f"use data recorded with an arm of max_torque {a} (the policy's actions are divided by it)")
     a, b = mine["palette"], theirs["palette"]
     if palette and a != b:
         field = "mode" if a.mode != b.mode else next(f.name for f in dataclasses.fields(PaletteConfig)

@@ -108,6 +108,8 @@ def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
 def _train(method, cfg, run_dir, resume, progress, stop_after):
     ckpt_path, log_path = os.path.join(run_dir, "checkpoint.npz"), os.path.join(run_dir, "log.jsonl")
     ckpt = _resumable(cfg, ckpt_path) if resume else None    # before any data is collected for it
+    if not resume and os.path.exists(ckpt_path):
+        raise FileExistsError(f"{run_dir!r} already holds a run; use --resume, or another --run folder")
     # 1. Data: both splits, in network units (images in [0, 1], states and torques of order one).
     train_set, validation_set = run_data.ensure(cfg, progress=progress)
     train_set = run_data.subset(train_set, cfg.tasks, cfg.demos)
@@ -117,8 +119,6 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
     if resume:
         state, net_cfg, before = _resume(ckpt, cfg, ckpt_path, log_path, train_set, validation_set)
     else:
-        if os.path.exists(ckpt_path):
-            raise FileExistsError(f"{run_dir!r} already holds a run; use --resume, or another --run folder")
         fit_check.check_same_world(train_set["metadata"], validation_set["metadata"], cfg.train_data,
                                    cfg.validation_data)   # its checks (and the random policy's fit) act in it
         net_cfg = method.network_config(train_set["images"].shape[-2])
