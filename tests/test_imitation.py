@@ -5,9 +5,11 @@ import pytest
 from autograd import grad
 
 from helpers import assert_batched_equals_loop
+from oneshot import methods
 from oneshot.maml import batched, imitation, inner
 from oneshot.policy import network
 from oneshot.maml.inner import InnerLoop
+from oneshot.world.reach import ReachWorld, WorldConfig
 
 CFG = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5, 5))
 
@@ -170,3 +172,22 @@ def test_trial_seeds_are_distinct_for_any_number_of_colours_and_trials_and_the_t
 def test_trial_seed_refuses_what_is_not_a_count_or_a_split(seed, task, trial, split):
     with pytest.raises(ValueError, match="non-negative int|splits"):
         imitation.trial_seed(seed, task, trial, split)
+
+
+@pytest.mark.parametrize("trials", [0, -1, 1.5, True])
+def test_one_shot_success_refuses_a_count_of_trials_that_is_not_one_or_more(trials):
+    with pytest.raises(ValueError, match=f"trials_per_colour must be an int >= 1; got {trials!r}"):
+        imitation.one_shot_success(lambda demo: None, {"metadata": {}}, trials)
+
+
+@pytest.mark.parametrize("colour, message", [(4.7, "must be an int"), ("4", "must be an int"), (True, "must be an int")])
+def test_rollout_lets_the_world_check_the_target_colour(colour, message):
+    """Not int(colour): 4.7 and "4" were episodes of colour 4, and True was called colour 1."""
+    world = ReachWorld(WorldConfig(split="validation"))
+    with pytest.raises(ValueError, match=message):
+        imitation.rollout(lambda image, state, scene: np.zeros((1, 2)), world, 0, colour)
+
+
+def test_methods_of_asks_for_a_config_not_a_name():
+    with pytest.raises(ValueError, match=r"methods.of takes a TrainConfig, e.g. TrainConfig\(method='mil'\)"):
+        methods.of("mil")

@@ -4,11 +4,14 @@ parameter (a bare KeyError before), big-endian arrays (refused as "must be float
 and metadata JSON nested deep enough to be a RecursionError."""
 import json
 
+import autograd.numpy as anp
 import numpy as np
 import pytest
+from autograd import grad
 
 from oneshot.data import datasets
-from oneshot.policy.network import NetworkConfig, images_to_float, init_params, predict, predict_tasks
+from oneshot.maml import imitation
+from oneshot.policy.network import NetworkConfig, forward, images_to_float, init_params, predict, predict_tasks
 from oneshot.training import checkpoint
 from test_checkpoint import save_tiny
 from test_data import _rewrite, tiny_file  # noqa: F401 (a fixture)
@@ -50,6 +53,55 @@ def test_images_outside_0_1_are_refused(change, message):
     params, images, states = problem()
     with pytest.raises(ValueError, match=message):
         predict(params, change(images), states)
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_states_that_are_not_finite_are_refused(value):
+    params, images, states = problem()
+    states[1, 2] = value
+    with pytest.raises(ValueError, match="states must be finite; they hold NaN or inf"):
+        predict(params, images, states)
+
+
+def test_predict_differentiates_with_respect_to_its_inputs():
+    """A saliency map: d(actions)/d(images) and d/d(states) through the checked entry, as through forward."""
+    params, images, states = problem()
+    to_images = grad(lambda x: anp.sum(predict(params, x, states)))(images)
+    np.testing.assert_array_equal(to_images, grad(lambda x: anp.sum(forward(params, x, states)))(images))
+    to_states = grad(lambda s: anp.sum(predict(params, images, s)))(states)
+    assert to_images.shape == images.shape and to_states.shape == states.shape and np.any(to_states != 0)
+
+
+# --- a demonstration, as eq. (1) adapts on it (imitation.adapt, a method's conditioner) --------------------
+
+def demo_of(T=3):
+    params, images, states = problem(T)
+    return params, (images, states, np.random.default_rng(1).standard_normal((T, 2)).astype(np.float32))
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: (np.round(d[0] * 255).astype(np.uint8), d[1], d[2]), r"got uint8 .*images_to_float"),
+    (lambda d: (np.round(d[0] * 255), d[1], d[2]), r"got values up to 2\d\d: divide images in 0..255 by 255"),
+    (lambda d: (d[0][:0], d[1][:0], d[2][:0]), "at least one frame"),
+    (lambda d: (d[0], d[1], d[2][:1]), r"actions must be \(3, 2\) float .* got \(1, 2\)"),
+    (lambda d: (d[0], d[1], d[2][:, :1]), r"actions must be \(3, 2\) float"),
+    (lambda d: (d[0], d[1], np.full_like(d[2], np.nan)), "actions must be finite"),
+    (lambda d: (d[0], d[1]), r"a demo is \(images, states, actions\)"),
+    (lambda d: (d[0][:, :4, :4], d[1], d[2]), "more than the .* inputs|states must be"),
+])
+def test_adapting_checks_the_demonstration(change, message):
+    """eq. (1) on a wrong demo fails in one line at its entry: raw camera images would make a step 255
+    times too large and a policy that fails without a word (0/10 trials instead of 10/10)."""
+    params, demo = demo_of()
+    with pytest.raises(ValueError, match=message):
+        imitation.adapt(params, change(demo), 0.1, 1)
+
+
+def test_adapting_casts_a_float64_demo_to_the_parameters_dtype():
+    params, demo = demo_of()
+    adapted = imitation.adapt(params, tuple(a.astype(np.float64) for a in demo), np.float64(0.1), 1)
+    assert all(v.dtype == np.float32 for v in adapted.values())
+    np.testing.assert_array_equal(adapted["conv0_w"], imitation.adapt(params, demo, 0.1, 1)["conv0_w"])
 
 
 def test_images_of_exactly_0_and_1_are_accepted():

@@ -16,7 +16,8 @@ from tqdm import tqdm
 
 from oneshot.maml import inner
 from oneshot.data.datasets import world_config
-from oneshot.policy.network import forward, images_to_float
+from oneshot.policy import inputs
+from oneshot.policy.network import STRIDE, forward, images_to_float
 from oneshot.world.reach import ReachWorld, closest_object, is_success, observation_state
 
 # joint angles (rad), joint velocities (rad/s), end effector (m) -> order one
@@ -68,8 +69,11 @@ class PolicyDiverged(ValueError):
 
 def adapt(params, demo, alpha=0.001, steps=3, **options):
     """One-shot adaptation (eq. 1 with eq. 2 as its loss) to a single demo (images, states, actions) in
-    network units: `inner.inner_update`, whose options (first_order, only, ...) pass through."""
-    return inner.inner_update(params, demo, imitation_loss, alpha, steps, **options)
+    network units: `inner.inner_update`, whose options (first_order, only, ...) pass through. The demo
+    is checked first (`inputs.check_demo`): camera images in 0..255, say, would make a step 255 times
+    too large and a policy that fails without saying why."""
+    return inner.inner_update(params, inputs.check_demo(params, demo, STRIDE), imitation_loss, alpha, steps,
+                              **options)
 
 
 def act(policy, obs, max_torque, scene=None):
@@ -95,7 +99,7 @@ def rollout(policy, world, seed, target_colour=None):
 
     Returns {"success": bool, "images": (T, H, W, 3) uint8, "end_effector": (T, 2), "scene": Scene}.
     """
-    options = {} if target_colour is None else {"target_colour": int(target_colour)}
+    options = {} if target_colour is None else {"target_colour": target_colour}   # the world checks it
     obs, info = world.reset(seed=seed, options=options)
     images, ee = [], []
     for _ in range(world.config.horizon):
@@ -156,6 +160,9 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
     "wrong_object": m}}: a failed trial is a near miss when the end effector's closest object over the
     final fifth was the target, else it went to a distractor.
     """
+    if isinstance(trials_per_colour, bool) or not isinstance(trials_per_colour, numbers.Integral) \
+            or trials_per_colour < 1:
+        raise ValueError(f"trials_per_colour must be an int >= 1; got {trials_per_colour!r}")
     meta = dataset["metadata"]
     world_cfg = world_config(meta)
     world = ReachWorld(world_cfg)

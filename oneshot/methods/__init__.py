@@ -19,6 +19,9 @@ REGISTRY = {method.name: method for method in (MIL, Contextual, LSTM, RandomPoli
 
 def of(cfg):
     """The method `cfg.method` names, bound to cfg (a TrainConfig). Raises ValueError for an unknown name."""
+    if not hasattr(cfg, "method"):
+        raise ValueError(f"methods.of takes a TrainConfig, e.g. TrainConfig(method='mil') or a profile of "
+                         f"oneshot.training.config.PROFILES; got {cfg!r}")
     if cfg.method not in REGISTRY:
         raise ValueError(f"method must be one of {', '.join(REGISTRY)}; got {cfg.method!r}")
     return REGISTRY[cfg.method](cfg)

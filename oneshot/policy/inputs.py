@@ -7,6 +7,7 @@ import math
 import re
 
 import numpy as np
+from autograd.tracer import getval, isbox
 
 from oneshot.policy.layers import conv_output_size
 
@@ -24,7 +25,9 @@ def check(params, images, states, task_axes, stride):
     check_params(params)
     conv0_w = params["conv0_w"]
     dtype, c_img = conv0_w.dtype, conv0_w.shape[-2]
-    images, states = np.asarray(images), np.asarray(states)
+    boxed = isbox(images) or isbox(states)      # differentiated with respect to them (e.g. a saliency map)
+    given_images, given_states = images, states
+    images, states = np.asarray(getval(images)), np.asarray(getval(states))
     want = "(T, H, W, 3)" if task_axes == 0 else "(B, T, H, W, 3)"
     if images.dtype == np.uint8:
         raise ValueError(
@@ -67,9 +70,30 @@ def check(params, images, states, task_axes, stride):
                     f"params[{name!r}] must be shared (no task axis) or have a leading task axis of size "
                     f"{n_tasks} to match images {images.shape}; got {value.shape}"
                 )
-    images = images.astype(dtype, copy=False)
     check_pixels(images, want)
-    return images, states.astype(dtype, copy=False)
+    if not np.all(np.isfinite(states)):
+        raise ValueError(f"states must be finite; they hold NaN or inf (states {states.shape})")
+    if boxed:                                   # autograd follows them as they are
+        return given_images, given_states
+    return images.astype(dtype, copy=False), states.astype(dtype, copy=False)
+
+
+def check_demo(params, demo, stride):
+    """`check` for a demonstration (images (T, H, W, 3) float in [0, 1], states (T, 6), actions (T, 2)
+    in network units: `imitation.prepare_demos`), with the actions' shape and values too; returns the
+    demo cast to the parameters' dtype."""
+    if not (isinstance(demo, (tuple, list)) and len(demo) == 3):
+        raise ValueError(f"a demo is (images, states, actions) in network units (imitation.prepare_demos); got "
+                         f"{type(demo).__name__}{' of ' + str(len(demo)) if isinstance(demo, (tuple, list)) else ''}")
+    images, states = check(params, demo[0], demo[1], 0, stride)
+    actions = np.asarray(getval(demo[2]))
+    n_out = params["out_b"].shape[-1]
+    if actions.shape != (images.shape[0], n_out) or not np.issubdtype(actions.dtype, np.floating):
+        raise ValueError(f"actions must be {(images.shape[0], n_out)} float (torques divided by the torque bound: "
+                         f"imitation.prepare_demos) to match images {images.shape}; got {actions.shape} {actions.dtype}")
+    if not np.all(np.isfinite(actions)):
+        raise ValueError(f"actions must be finite; they hold NaN or inf (actions {actions.shape})")
+    return images, states, demo[2] if isbox(demo[2]) else actions.astype(params["out_b"].dtype, copy=False)
 
 
 def check_params(params):
