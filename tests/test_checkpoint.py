@@ -375,3 +375,22 @@ def test_single_bit_flips_load_the_original_or_raise_checkpoint_error(tmp_path, 
         outcomes["equal"] += 1
     assert outcomes["equal"] + outcomes["raised"] == flips
     assert outcomes["raised"] > flips // 2 and outcomes["equal"] > 0    # both happen: the sample covers both
+
+
+@pytest.mark.parametrize("change, says", [
+    (lambda a: dict(a, params={k: v.astype(np.float64) for k, v in a["params"].items()}), "has dtype float64"),
+    (lambda a: dict(a, ema=None), "has no array 'ema/"),
+    (lambda a: dict(a, iteration=-1), "meta 'iteration' is -1, not >= 0"),
+    (lambda a: dict(a, world="bad"), "meta 'world' is 'bad', not dict"),
+    (lambda a: dict(a, net_cfg=dataclasses.replace(NET, hidden=(7,))), "has shape"),
+])
+def test_save_refuses_what_load_would_refuse_and_writes_nothing(tmp_path, change, says):
+    rng = np.random.default_rng(0)
+    params = methods.of(CFG).init_params(NET, rng)
+    a = change(dict(params=params, ema=params if CFG.ema else None, iteration=2, world=WORLD, net_cfg=NET))
+    with pytest.raises(ValueError, match=f"checkpoint.save would write a file that checkpoint.load refuses: .*{says}"):
+        checkpoint.save(tmp_path / "c.npz", a["params"], optim.adam_init(params), a["iteration"], rng, CFG,
+                        a["net_cfg"], a["ema"], world=a["world"])
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(ValueError, match="needs the run's np.random.Generator as rng; got RandomState"):
+        checkpoint.save(tmp_path / "c.npz", params, optim.adam_init(params), 2, np.random.RandomState(0), CFG, NET)

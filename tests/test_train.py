@@ -236,14 +236,20 @@ def test_corrupt_checkpoint_is_named(tmp_path):
     with pytest.raises(FileNotFoundError, match="oneshot.train"):
         checkpoint.load(tmp_path / "missing.npz")
     # NaN in the parameters or in their moving average: refused, naming the array
-    params = network.init_params(network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,)),
-                                 np.random.default_rng(0))
+    net_cfg = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5,))
+    params = network.init_params(net_cfg, np.random.default_rng(0))
     for where in ("params", "ema"):
         poisoned = {**params, "out_b": np.full_like(params["out_b"], np.nan)}
         path = tmp_path / f"nan_{where}.npz"
-        checkpoint.save(path, poisoned if where == "params" else params, optim.adam_init(params), 1,
-                              np.random.default_rng(0), config.TrainConfig(ema=0.5), network.NetworkConfig(),
-                              ema=poisoned if where == "ema" else params)
+        save = lambda p, e: checkpoint.save(path, p, optim.adam_init(params), 1, np.random.default_rng(0),
+                                            config.TrainConfig(ema=0.5), net_cfg, ema=e)
+        with pytest.raises(ValueError, match=f"save would write a file that checkpoint.load refuses: .*'{where}/out_b' "
+                                             f"contains NaN"):                      # not written
+            save(poisoned if where == "params" else params, poisoned if where == "ema" else params)
+        assert not path.exists()
+        save(params, params)                             # written, then poisoned by hand (its checksum too)
+        rewrite(path, edit_meta=lambda meta: meta.pop("checksum"),
+                edit_arrays=lambda arrays: arrays.update({f"{where}/out_b": poisoned["out_b"]}))
         with pytest.raises(ValueError, match=f"'{where}/out_b' contains NaN"):
             checkpoint.load(path)
 
