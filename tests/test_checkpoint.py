@@ -394,3 +394,11 @@ def test_save_refuses_what_load_would_refuse_and_writes_nothing(tmp_path, change
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(ValueError, match="needs the run's np.random.Generator as rng; got RandomState"):
         checkpoint.save(tmp_path / "c.npz", params, optim.adam_init(params), 2, np.random.RandomState(0), CFG, NET)
+
+
+def test_a_dataset_and_a_checkpoint_taken_for_each_other_are_named_for_what_they_are(tmp_path, tiny_split_datasets):
+    save_tiny(tmp_path / "c.npz")
+    with pytest.raises(datasets.DatasetError, match="is a checkpoint .*, not a dataset; load it with oneshot.training"):
+        datasets.load(tmp_path / "c.npz")
+    with pytest.raises(checkpoint.CheckpointError, match="is a dataset of demonstrations, not a checkpoint"):
+        checkpoint.load(tiny_split_datasets["validation"])

@@ -210,6 +210,9 @@ def load(path):
 def _read_metadata(path, archive):
     """The metadata dict of the dataset file at `path` (its open `npz.Reader`), of this format version."""
     if "metadata" not in archive.layout:
+        if "meta" in archive.layout and any(k.startswith("params/") for k in archive.layout):
+            raise DatasetError(f"{path!r} is a checkpoint (a trained policy), not a dataset; load it with "
+                               f"oneshot.training.checkpoint.load, or name a dataset of `python -m oneshot.collect`")
         raise DatasetError(f"{path!r} has no metadata, so it was not written by oneshot; {FIX}")
     if archive.layout["metadata"][0].kind != "U" or archive.layout["metadata"][1] != ():
         raise DatasetError(f"{path!r}: its metadata is not a JSON string; {FIX}")

@@ -123,6 +123,9 @@ def load(path):
 def _parse(path, arrays):
     """`load`'s checks and result, from the file's arrays ({"meta": the JSON metadata, name: array})."""
     arrays = dict(arrays)
+    if "meta" not in arrays and "metadata" in arrays and "images" in arrays:
+        raise CheckpointError(f"{path!r} is a dataset of demonstrations, not a checkpoint; load it with "
+                              f"oneshot.data.datasets.load, or name a checkpoint of `python -m oneshot.train`")
     meta = _read_meta(path, arrays.pop("meta", None))
     if "checksum" in meta and checksum(arrays) != meta["checksum"]:
         raise CheckpointError(f"{path!r} fails its checksum: its arrays were changed or damaged after "
