@@ -91,7 +91,8 @@ class ReachEnv(gymnasium.Env):
     split: which colours scenes are drawn from, "train", "validation" or "test"; palette_mode: "hues"
     (72 colours) or "grid" (696; `oneshot.world.palette`); image_size: H = W in pixels; horizon: T, steps per
     episode (through `gymnasium.make`, pass max_episode_steps=T too: make does not tell the env its
-    TimeLimit); target_colour: a palette index of the split that every episode uses, or None for a
+    TimeLimit, and with T > 20 the registered limit of 20 would end every episode before the env judges
+    success); target_colour: a palette index of the split that every episode uses, or None for a
     random colour per episode; render_mode: None or "rgb_array".
     """
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}   # 20 fps: one frame per 0.05 s step
