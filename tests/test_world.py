@@ -204,3 +204,38 @@ def test_render_before_reset_says_what_to_do():
     with pytest.raises(RuntimeError, match=r"call reset\(\) before render\(\)"):
         ReachWorld().render()
 
+
+
+@pytest.mark.parametrize("field, value, says", [
+    ("success_radius", -0.05, "success_radius must be a finite number of metres > 0"),
+    ("success_radius", float("nan"), "success_radius must be a finite number"),
+    ("start_noise", -0.1, "start_noise must be a finite number of radians >= 0"),
+    ("arena_half_width", -1, "arena_half_width must be"),
+    ("object_radius", -0.1, "object_radius must be"),
+    ("max_object_radius", 0.5, r"need 0.07 < 0.5 <= arena_half_width - object_radius = 0.195"),
+    ("min_object_radius", 0.3, r"need 0.3 < 0.19"),
+    ("n_objects", 0, "n_objects must be at least 1"),
+    ("image_size", 10 ** 5, "image_size must be at most 1024"),
+])
+def test_a_world_config_that_cannot_make_a_sensible_world_is_refused(field, value, says):
+    """Each was accepted (success made impossible, noise ignored, discs outside the arena) or failed
+    later with a library's message (Pillow's, NumPy's), or hung (a 100000-pixel image)."""
+    one_line_error(lambda: WorldConfig(**{field: value}), says)
+
+
+def test_reset_options_are_a_dict_naming_one_target():
+    world = ReachWorld(WorldConfig(split="validation"))
+    scene = world.reset(seed=0)[1]["scene"]
+    one_line_error(lambda: world.reset(seed=0, options="target_colour"), "reset options must be a dict")
+    one_line_error(lambda: world.reset(seed=0, options={"scene": scene, "target_colour": 9}),
+                   "'scene' and 'target_colour' both name the target: pass one of them")
+
+
+@pytest.mark.parametrize("bad", [1.5, True, "3", -1])
+def test_palette_names_only_palette_indices(bad):
+    one_line_error(lambda: palette.colour_name(bad), r"is not a palette index \(an int in \[0, 72\)\)")
+
+
+@pytest.mark.parametrize("size", [0, 2.5])
+def test_a_palette_of_no_hues_is_refused(size):
+    one_line_error(lambda: palette.PaletteConfig(size=size), "palette needs whole numbers size >= 1")

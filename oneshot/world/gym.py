@@ -131,6 +131,8 @@ class ReachEnv(gymnasium.Env):
         gives the same scene every time, and later resets without a seed continue that stream.
         """
         super().reset(seed=seed)
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"reset options must be a dict, e.g. {{'target_colour': 9}}; got {type(options).__name__}")
         options = dict(options or {})
         unknown = set(options) - set(OPTIONS)
         if unknown:

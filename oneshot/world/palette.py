@@ -94,6 +94,11 @@ class PaletteConfig:
             if not levels or not all(0 < x <= 1 for x in levels):
                 raise ValueError(f"palette {name} must be a non-empty sequence in (0, 1]; got {levels}")
             object.__setattr__(self, name, levels)
+        if not all(isinstance(getattr(self, n), (int, np.integer)) and not isinstance(getattr(self, n), bool)
+                   for n in ("size", "heldout_every", "guard")) or self.size < 1 or self.heldout_every < 1 \
+                or self.guard < 0:
+            raise ValueError(f"palette needs whole numbers size >= 1, heldout_every >= 1 and guard >= 0; "
+                             f"got {self.size!r}, {self.heldout_every!r}, {self.guard!r}")
         triples = tuple(tuple(float(x) for x in t) for t in self.test_colours)
         step = 360.0 / self.size
         if not triples or not all(len(t) == 3 and abs(t[0]) < step and 0 < t[1] <= 1 and 0 < t[2] <= 1 for t in triples) \
@@ -102,9 +107,6 @@ class PaletteConfig:
                              f"under one hue step ({step:g} deg) and the levels in (0, 1], none of them a validation "
                              f"colour; got {self.test_colours}")
         object.__setattr__(self, "test_colours", triples)
-        if self.size < 1 or self.heldout_every < 1 or self.guard < 0:
-            raise ValueError(f"palette needs size >= 1, heldout_every >= 1 and guard >= 0; "
-                             f"got {self.size}, {self.heldout_every}, {self.guard}")
         if self.guard > 0 and not np.any(hue_steps_to_heldout(self) > self.guard):
             raise ValueError(f"guard {self.guard} leaves no training hue between held-out hues "
                              f"{self.heldout_every} apart; lower guard or raise heldout_every")
@@ -205,8 +207,8 @@ def hue_distance_deg(i, j, cfg=PaletteConfig()):
 
 def colour_name(i, cfg=PaletteConfig()):
     """A short name for pictures and tables: "hue 30 deg"; in grid mode "hue 30 deg, sat 0.75, val 0.8"."""
-    if not 0 <= i < n_colours(cfg):
-        raise ValueError(f"colour {i!r} is not a palette index in [0, {n_colours(cfg)})")
+    if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)) or not 0 <= i < n_colours(cfg):
+        raise ValueError(f"colour {i!r} is not a palette index (an int in [0, {n_colours(cfg)}))")
     name = f"hue {float(colour_hue_deg(i, cfg)):g} deg"
     if cfg.mode == "hues":
         return name

@@ -19,6 +19,7 @@ meta-gradient cheap (its cost grows linearly with the number of frames). Success
 0.05 distance of the goal") is judged on the final fifth of the episode, as in MIL's released code
 (last 10 of 50 steps): here the last 4 of 20.
 """
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -65,8 +66,23 @@ class WorldConfig:
         if self.horizon < 5:
             raise ValueError(f"horizon must be at least 5 steps (success uses its final fifth); "
                              f"got {self.horizon}")
+        for name in ("arena_half_width", "object_radius", "min_object_radius", "max_object_radius",
+                     "success_radius", "min_separation", "start_noise"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                    or value < 0 or (value == 0 and name != "start_noise"):
+                raise ValueError(f"{name} must be a finite number of {'radians' if name == 'start_noise' else 'metres'} "
+                                 f"{'>= 0' if name == 'start_noise' else '> 0'}; got {value!r}")
+        if self.n_objects < 1:
+            raise ValueError(f"n_objects must be at least 1 (the target); got {self.n_objects}")
+        if not self.min_object_radius < self.max_object_radius <= self.arena_half_width - self.object_radius:
+            raise ValueError(f"objects lie between min_object_radius and max_object_radius from the base, inside "
+                             f"the arena: need {self.min_object_radius} < {self.max_object_radius} <= arena_half_width "
+                             f"- object_radius = {self.arena_half_width - self.object_radius:.3g}")
         if self.min_separation <= 2 * self.success_radius:
             raise ValueError("min_separation must exceed 2 * success_radius, or success is ambiguous")
+        if self.image_size > 1024:
+            raise ValueError(f"image_size must be at most 1024 pixels (the policy sees 32); got {self.image_size}")
         palette.split_colours(self.split, self.palette)   # validates the split name
 
 
@@ -200,7 +216,13 @@ class ReachWorld:
 
         Returns (obs, info); info has "scene", "target_position" and "success" (False).
         """
-        options = options or {}
+        options = {} if options is None else options
+        if not isinstance(options, dict):
+            raise ValueError(f"reset options must be a dict, {{'scene': Scene}} or {{'target_colour': palette index}}; "
+                             f"got {type(options).__name__}")
+        if "scene" in options and options.get("target_colour") is not None:
+            raise ValueError("reset options 'scene' and 'target_colour' both name the target: pass one of them "
+                             "(a scene's target colour is its own)")
         rng = np.random.default_rng(seed)
         if "scene" in options:
             self.scene = check_scene(options["scene"], self.config)
