@@ -353,3 +353,17 @@ def test_a_file_written_before_the_state_layout_was_recorded_still_loads(small, 
     assert back["metadata"] == json.loads(json.dumps(meta)) and "state_layout" not in back["metadata"]
     for key in datasets.ARRAYS:
         assert np.array_equal(back[key], small[key]), key
+
+
+@pytest.mark.parametrize("colour", [999, "validation"])
+def test_a_colour_outside_the_datasets_split_is_refused_on_save(small, tmp_path, colour):
+    """A task colour outside the palette (999), or of another split, saved and loaded before; it failed
+    only at meta-test ("colour 999 is not a 'validation' colour")."""
+    bad = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in small.items()}
+    new = 999 if colour == 999 else int(palette.split_colours("validation")[0])
+    old = bad["task_colours"][0]
+    bad["task_colours"][0] = new
+    bad["colours"][0][bad["colours"][0] == old] = new            # its demos' targets too: consistent otherwise
+    with pytest.raises(datasets.DatasetError, match=rf"task_colours holds \[{new}\], not 'train' colours of its 'hues'"):
+        datasets.save(bad, tmp_path / "bad.npz")
+    assert not (tmp_path / "bad.npz").exists()

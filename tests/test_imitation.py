@@ -118,6 +118,13 @@ def test_prepare_demos_scales_and_rejects_mismatched_shapes(rng):
     np.testing.assert_allclose(ac, 1.0)
     with pytest.raises(ValueError, match="actions must be"):
         imitation.prepare_demos(images, states, actions[:, :-1], 0.5)
+    for torque in (0, -0.5, np.inf, "0.5", True):               # 0 made infinite actions, with a warning
+        with pytest.raises(ValueError, match="max_torque must be the arm's torque bound, a number of N m > 0"):
+            imitation.prepare_demos(images, states, actions, torque)
+    with pytest.raises(ValueError, match=r"images must be \(..., T, H, W, 3\) uint8, a demo's frames; got \(32, 32, 3\)"):
+        imitation.prepare_demos(images[0, 0], states[0, 0], actions[0, 0], 0.5)
+    with pytest.raises(ValueError, match="images_to_float expects uint8 images; got dtype int64"):   # lists: int64
+        imitation.prepare_demos(images[0].tolist(), states[0].tolist(), actions[0].tolist(), 0.5)
 
 
 def test_sample_meta_batch_pairs_two_different_demos_of_one_task(rng):

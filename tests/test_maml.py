@@ -12,7 +12,8 @@ from autograd import grad
 from autograd.test_util import check_grads
 
 from helpers import make_demo, make_mlp, make_tasks, mlp_loss
-from oneshot.maml import batched
+from oneshot.maml import batched, inner
+from oneshot.policy import network
 from oneshot.maml.inner import (STEP_PREFIX, InnerLoop, clip_gradients, init_step_sizes, inner_update,
                                 meta_gradient, meta_objective)
 
@@ -328,3 +329,16 @@ def test_numpy_integers_are_step_counts():
         np.testing.assert_array_equal(counted[k], two[k])
     with pytest.raises(ValueError, match="non-negative int"):
         inner_update(params, demo, mlp_loss, steps=np.float64(2.0))
+
+
+def test_inner_loop_options_are_refused_in_one_line_when_they_cannot_mean_anything(rng):
+    """A typo in `only` (fc_0 for fc0_) adapted only the other prefixes, silently; None for clip or frozen
+    was a TypeError; a string step size was taken as a number."""
+    params = network.init_params(network.NetworkConfig(image_size=8, channels=(3,), hidden=(4,)), rng)
+    with pytest.raises(ValueError, match=r"no parameter starts with \['fc_0'\] of only=\('conv0', 'fc_0'\) \(a typo\?\)"):
+        inner.adapted_keys(params, only=("conv0", "fc_0"))
+    assert inner.adapted_keys(params, frozen=("ln",)) == list(params)          # a frozen prefix naming nothing
+    for options, says in (({"clip": None}, "clip must be finite"), ({"frozen": None}, "frozen must be a tuple"),
+                          ({"alpha": "0.1"}, "alpha must be a real number"), ({"loss_scale": True}, "loss_scale")):
+        with pytest.raises(ValueError, match=says):
+            inner.InnerLoop(**options)

@@ -157,6 +157,18 @@ def check_metadata(metadata, layout, source="dataset"):
                            f"{list(STATE_LAYOUT)}; {FIX}")
 
 
+def check_colours(dataset, metadata, source="dataset"):
+    """Raise DatasetError unless every task's colour and every disc's is a colour of the metadata's split
+    in its palette (a colour outside it would fail only at meta-test, or name another colour)."""
+    world = world_config(metadata, source)
+    allowed = palette.split_colours(world.split, world.palette)
+    for key in ("task_colours", "colours"):
+        outside = np.setdiff1d(dataset[key], allowed)
+        if outside.size:
+            raise DatasetError(f"{source}: {key} holds {outside[:5].tolist()}, not {world.split!r} colours of its "
+                               f"{world.palette.mode!r} palette; {FIX}")
+
+
 def save(dataset, path):
     """Write `dataset` (validated, arrays and metadata) to `path` (.npz), atomically, through a symbolic
     link and never over a device or a FIFO (`files.atomic_write`). Adds the format version, the state
@@ -166,6 +178,7 @@ def save(dataset, path):
     arrays = {key: dataset[key] for key in ARRAYS}
     metadata = dataset.get("metadata", {})
     check_metadata(metadata, layout_of(arrays))
+    check_colours(arrays, metadata)
     meta = dict(metadata, format_version=FORMAT_VERSION, state_layout=list(STATE_LAYOUT),
                 checksum=checksum(arrays))
     with files.atomic_write(path) as f:
@@ -200,6 +213,7 @@ def load(path):
     except files.RefusedPath as e:
         raise DatasetError(str(e)) from None
     validate(data, source)
+    check_colours(data, meta, source)
     if checksum(data) != meta.get("checksum"):
         raise DatasetError(f"{path!r} fails its checksum: the arrays were changed or damaged after "
                            f"saving; {FIX}")

@@ -27,6 +27,13 @@ STATE_SCALE = np.array([np.pi, np.pi, 10.0, 10.0, 0.2, 0.2], np.float32)
 def prepare_demos(images, states, actions, max_torque):
     """Dataset arrays -> network units. images (..., T, H, W, 3) uint8, states (..., T, 6),
     actions (..., T, 2) N m -> (images float32 in [0, 1], states / STATE_SCALE, actions / max_torque)."""
+    if isinstance(max_torque, (bool, np.bool_)) or not isinstance(max_torque, numbers.Real) \
+            or not 0 < max_torque < np.inf:
+        raise ValueError(f"max_torque must be the arm's torque bound, a number of N m > 0 (the dataset's "
+                         f"world: ArmConfig.max_torque, 0.5 by default); got {max_torque!r}")
+    images, states, actions = np.asarray(images), np.asarray(states), np.asarray(actions)
+    if images.ndim < 4:
+        raise ValueError(f"images must be (..., T, H, W, 3) uint8, a demo's frames; got {images.shape}")
     for name, a, last in (("states", states, 6), ("actions", actions, 2)):
         if a.shape[-1] != last or a.shape[:-1] != images.shape[:-3]:
             raise ValueError(f"{name} must be {images.shape[:-3] + (last,)} to match images "

@@ -34,6 +34,8 @@ def check_step(alpha, steps):
     if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 0:   # np.int64 too
         raise ValueError(f"inner steps must be a non-negative int; got {steps!r}")
     try:
+        if isinstance(alpha, (str, bytes, bool, np.bool_)):       # float("0.1") would take a string
+            raise TypeError
         alpha = float(alpha)
     except TypeError:
         raise ValueError(f"inner step size alpha must be a real number; got {alpha!r}") from None
@@ -54,6 +56,10 @@ def adapted_keys(params, only=None, frozen=()):
     in `only` (e.g. ("conv",): adapt the convolution layers only; the rest stays shared), but none
     starting with a prefix in `frozen` (parameters that never adapt, e.g. the layer norm's offsets in
     MIL's released code). Learnt step sizes (STEP_PREFIX keys) are never adapted."""
+    typos = [] if only is None else unmatched(params, only)
+    if typos:                                 # (a `frozen` prefix naming nothing is harmless: a profile's "ln"
+        raise ValueError(f"no parameter starts with {typos} of only={tuple(only)} (a typo?); the parameters are "
+                         f"{list(params)}")                                                     # without LN)
     keys = [k for k in params if not k.startswith(STEP_PREFIX) and (only is None or k.startswith(tuple(only)))
             and not k.startswith(tuple(frozen))]
     if not keys:
@@ -120,11 +126,13 @@ class InnerLoop:
             object.__setattr__(self, "only", tuple(self.only))
         if not isinstance(self.first_order, (bool, np.bool_)):
             raise ValueError(f"first_order must be True or False; got {self.first_order!r}")
-        if isinstance(self.frozen, str) or not all(isinstance(p, str) for p in self.frozen):
-            raise ValueError(f"frozen must be a tuple of key prefixes; got {self.frozen!r}")
+        if isinstance(self.frozen, str) or not isinstance(self.frozen, (tuple, list)) \
+                or not all(isinstance(p, str) for p in self.frozen):
+            raise ValueError(f"frozen must be a tuple of key prefixes ((): none); got {self.frozen!r}")
         object.__setattr__(self, "frozen", tuple(self.frozen))
         for name in ("clip", "loss_scale"):
-            value = float(getattr(self, name))
+            given = getattr(self, name)
+            value = float(given) if isinstance(given, numbers.Real) and not isinstance(given, bool) else np.nan
             if not (np.isfinite(value) and value >= 0) or (name == "loss_scale" and value == 0):
                 raise ValueError(f"{name} must be finite and {'> 0' if name == 'loss_scale' else '>= 0 (0: off)'}; "
                                  f"got {getattr(self, name)!r}")
