@@ -14,7 +14,7 @@ import pytest
 
 from oneshot.maml import batched, inner
 from oneshot.maml.inner import InnerLoop
-from oneshot.world.reach import Scene
+from oneshot.world.scene import Scene
 
 
 # ----- a tiny model: 2-layer tanh MLP with a summed squared-error loss (stands in for eq. 2) -----
@@ -126,7 +126,7 @@ def check_hostile_scenes(reset, step):
         one_line_error(lambda: reset(options={"scene": Scene(good.colours, good.positions, target)}),
                        r"reset option 'scene': target must be an int")
     one_line_error(lambda: reset(options={"scene": {"colours": [0, 16, 32]}}),
-                   r"reset option 'scene' must be a oneshot.world.reach.Scene; got dict")
+                   r"reset option 'scene' must be a oneshot.world.scene.Scene; got dict")
     positions = good.positions.copy()
     reset(options={"scene": Scene(np.array([0, 16, 32]), positions, 0)})
     positions[:] = np.nan                                      # the caller's array, after the reset

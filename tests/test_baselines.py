@@ -78,7 +78,7 @@ def test_the_lstm_carries_the_demo_in_its_state(rng):
     before = lstm_policy(params, demo)(image, state, None)
     for k in range(3):                                # the demo's first frame: its image, state, action
         changed = [a.copy() for a in demo]
-        changed[k][0] += 1.0
+        changed[k][0] = 1.0 - changed[k][0] if k == 0 else changed[k][0] + 1.0    # images stay in [0, 1]
         assert np.abs(lstm_policy(params, tuple(changed))(image, state, None) - before).max() > 1e-6, k
     # one step by hand: c' = s(f) c + s(i) tanh(g), h' = s(o) tanh(c')
     h, c, xw = rng.normal(size=(1, 4)), rng.normal(size=(1, 4)), rng.normal(size=(1, 16))

@@ -12,7 +12,7 @@ import zipfile
 import numpy as np
 import pytest
 
-from oneshot.data import collection, datasets
+from oneshot.data import collection, datasets, npz
 from oneshot.world import palette
 from oneshot.world.arm import ArmConfig
 from oneshot.world.palette import PaletteConfig
@@ -367,3 +367,16 @@ def test_a_colour_outside_the_datasets_split_is_refused_on_save(small, tmp_path,
     with pytest.raises(datasets.DatasetError, match=rf"task_colours holds \[{new}\], not 'train' colours of its 'hues'"):
         datasets.save(bad, tmp_path / "bad.npz")
     assert not (tmp_path / "bad.npz").exists()
+    distractor = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in small.items()}
+    others = distractor["colours"][..., :] != distractor["task_colours"][:, None, None]   # not the target
+    distractor["colours"][np.nonzero(others)[0][0], np.nonzero(others)[1][0], np.nonzero(others)[2][0]] = new
+    with pytest.raises(datasets.DatasetError, match=rf"colours holds \[{new}\], not 'train' colours"):
+        datasets.save(distractor, tmp_path / "bad.npz")
+    # and on load: a file written without the check (its checksum made to fit), read back
+    meta = datasets.save(small, tmp_path / "good.npz")
+    arrays = {k: bad[k] for k in datasets.ARRAYS}
+    written = dict(meta, checksum=datasets.checksum(arrays))
+    with open(tmp_path / "bad.npz", "wb") as f:
+        npz.write(f, {"metadata": np.array(json.dumps(written, sort_keys=True)), **arrays})
+    with pytest.raises(datasets.DatasetError, match=rf"task_colours holds \[{new}\], not 'train' colours"):
+        datasets.load(tmp_path / "bad.npz")

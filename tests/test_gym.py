@@ -12,7 +12,8 @@ import pytest
 import oneshot
 from helpers import check_hostile_scenes, one_line_error
 from oneshot.world import arm, palette, render
-from oneshot.world.reach import ReachWorld, Scene, WorldConfig, is_success
+from oneshot.world.reach import ReachWorld, WorldConfig, is_success
+from oneshot.world.scene import Scene
 
 gymnasium = pytest.importorskip("gymnasium")    # the optional extra: pip install ".[gym]"
 from gymnasium.utils.env_checker import check_env

@@ -8,11 +8,14 @@ import autograd.numpy as anp
 import numpy as np
 import pytest
 from autograd import grad
+from autograd.tracer import getval
 
+from oneshot import methods
 from oneshot.data import datasets
 from oneshot.maml import imitation
 from oneshot.policy.network import NetworkConfig, forward, images_to_float, init_params, predict, predict_tasks
 from oneshot.training import checkpoint
+from oneshot.training.config import TrainConfig
 from test_checkpoint import save_tiny
 from test_data import _rewrite, tiny_file  # noqa: F401 (a fixture)
 
@@ -70,6 +73,14 @@ def test_predict_differentiates_with_respect_to_its_inputs():
     np.testing.assert_array_equal(to_images, grad(lambda x: anp.sum(forward(params, x, states)))(images))
     to_states = grad(lambda s: anp.sum(predict(params, images, s)))(states)
     assert to_images.shape == images.shape and to_states.shape == states.shape and np.any(to_states != 0)
+    dtypes = []                                     # float64 inputs are cast to the parameters' float32, boxed too
+
+    def actions_sum(x):
+        actions = predict(params, x, states.astype(np.float64))
+        dtypes.append(getval(actions).dtype)
+        return anp.sum(actions)
+    np.testing.assert_allclose(grad(actions_sum)(images.astype(np.float64)), to_images, rtol=1e-6)
+    assert dtypes == [np.float32]
 
 
 # --- a demonstration, as eq. (1) adapts on it (imitation.adapt, a method's conditioner) --------------------
@@ -80,10 +91,10 @@ def demo_of(T=3):
 
 
 @pytest.mark.parametrize("change, message", [
-    (lambda d: (np.round(d[0] * 255).astype(np.uint8), d[1], d[2]), r"got uint8 .*images_to_float"),
+    (lambda d: (np.round(d[0] * 255).astype(np.uint8), d[1], d[2]), r"got uint8 \(3, 8, 8, 3\): imitation.prepare_demos converts"),
     (lambda d: (np.round(d[0] * 255), d[1], d[2]), r"got values up to 2\d\d: divide images in 0..255 by 255"),
-    (lambda d: (d[0][:0], d[1][:0], d[2][:0]), "at least one frame"),
-    (lambda d: (d[0], d[1], d[2][:1]), r"actions must be \(3, 2\) float .* got \(1, 2\)"),
+    (lambda d: (d[0][:0], d[1][:0], d[2][:0]), r"with T >= 1; got \(0, 8, 8, 3\)"),
+    (lambda d: (d[0], d[1], d[2][:1]), r"demo actions must be \(3, n\) float .* got \(1, 2\)"),
     (lambda d: (d[0], d[1], d[2][:, :1]), r"actions must be \(3, 2\) float"),
     (lambda d: (d[0], d[1], np.full_like(d[2], np.nan)), "actions must be finite"),
     (lambda d: (d[0], d[1]), r"a demo is \(images, states, actions\)"),
@@ -95,6 +106,19 @@ def test_adapting_checks_the_demonstration(change, message):
     params, demo = demo_of()
     with pytest.raises(ValueError, match=message):
         imitation.adapt(params, change(demo), 0.1, 1)
+
+
+@pytest.mark.parametrize("name", ["contextual", "lstm"])
+@pytest.mark.parametrize("camera", ["uint8", "0..255"])
+def test_a_baselines_conditioner_checks_the_demonstration(name, camera):
+    """The baselines read the demo too: camera images went in as they were, without a word."""
+    method = methods.of(TrainConfig(method=name, channels=(3, 4), hidden=(5, 5)))
+    params = method.init_params(method.network_config(8), np.random.default_rng(0))
+    _, (images, states, actions) = demo_of()
+    raw = np.round(images * 255)
+    with pytest.raises(ValueError, match="got uint8" if camera == "uint8" else "divide images in 0..255 by 255"):
+        method.conditioner(params)((raw.astype(np.uint8) if camera == "uint8" else raw, states, actions))
+    assert callable(method.conditioner(params)((images, states, actions)))
 
 
 def test_adapting_casts_a_float64_demo_to_the_parameters_dtype():

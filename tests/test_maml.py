@@ -338,7 +338,7 @@ def test_inner_loop_options_are_refused_in_one_line_when_they_cannot_mean_anythi
     with pytest.raises(ValueError, match=r"no parameter starts with \['fc_0'\] of only=\('conv0', 'fc_0'\) \(a typo\?\)"):
         inner.adapted_keys(params, only=("conv0", "fc_0"))
     assert inner.adapted_keys(params, frozen=("ln",)) == list(params)          # a frozen prefix naming nothing
-    for options, says in (({"clip": None}, "clip must be finite"), ({"frozen": None}, "frozen must be a tuple"),
-                          ({"alpha": "0.1"}, "alpha must be a real number"), ({"loss_scale": True}, "loss_scale")):
+    for options, says in (({"clip": None}, "clip must be a finite number; got None"), ({"frozen": None}, "frozen must be a tuple"),
+                          ({"alpha": "0.1"}, "alpha must be a finite number; got '0.1'"), ({"loss_scale": True}, "loss_scale")):
         with pytest.raises(ValueError, match=says):
             inner.InnerLoop(**options)

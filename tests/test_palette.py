@@ -16,7 +16,8 @@ from oneshot.training import checkpoint
 from oneshot.world import palette
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.render import world_to_pixels
-from oneshot.world.reach import ReachWorld, Scene, WorldConfig
+from oneshot.world.reach import ReachWorld, WorldConfig
+from oneshot.world.scene import Scene
 
 GRID = PaletteConfig(mode="grid")
 

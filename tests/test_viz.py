@@ -8,7 +8,8 @@ from oneshot import demo
 from oneshot.expert import controller
 from oneshot.tools import viz
 from oneshot.world import palette, render
-from oneshot.world.reach import ReachWorld, Scene, WorldConfig
+from oneshot.world.reach import ReachWorld, WorldConfig
+from oneshot.world.scene import Scene
 
 H = W = 32
 SCALE = 4

@@ -7,7 +7,8 @@ import pytest
 from helpers import check_hostile_scenes, one_line_error
 from oneshot.world import palette
 from oneshot.world.render import world_to_pixels
-from oneshot.world.reach import ReachWorld, Scene, WorldConfig, closest_object, is_success, observation_state, sample_scene
+from oneshot.world.reach import ReachWorld, WorldConfig, closest_object, is_success, observation_state
+from oneshot.world.scene import Scene, sample_scene
 
 
 def test_a_disc_of_colour_c_appears_where_the_scene_says_in_colour_c():
@@ -207,9 +208,9 @@ def test_render_before_reset_says_what_to_do():
 
 
 @pytest.mark.parametrize("field, value, says", [
-    ("success_radius", -0.05, "success_radius must be a finite number of metres > 0"),
+    ("success_radius", -0.05, "success_radius must be > 0 metres; got -0.05"),
     ("success_radius", float("nan"), "success_radius must be a finite number"),
-    ("start_noise", -0.1, "start_noise must be a finite number of radians >= 0"),
+    ("start_noise", -0.1, "start_noise must be >= 0 radians; got -0.1"),
     ("arena_half_width", -1, "arena_half_width must be"),
     ("object_radius", -0.1, "object_radius must be"),
     ("max_object_radius", 0.5, r"need 0.07 < 0.5 <= arena_half_width - object_radius = 0.195"),
@@ -227,15 +228,20 @@ def test_reset_options_are_a_dict_naming_one_target():
     world = ReachWorld(WorldConfig(split="validation"))
     scene = world.reset(seed=0)[1]["scene"]
     one_line_error(lambda: world.reset(seed=0, options="target_colour"), "reset options must be a dict")
+    one_line_error(lambda: world.reset(seed=0, options={"target_color": 9}),     # was a random colour, unseen
+                   r"unknown reset options \['target_color'\]; use \('target_colour', 'scene'\)")
     one_line_error(lambda: world.reset(seed=0, options={"scene": scene, "target_colour": 9}),
                    "'scene' and 'target_colour' both name the target: pass one of them")
 
 
 @pytest.mark.parametrize("bad", [1.5, True, "3", -1])
 def test_palette_names_only_palette_indices(bad):
-    one_line_error(lambda: palette.colour_name(bad), r"is not a palette index \(an int in \[0, 72\)\)")
+    one_line_error(lambda: palette.colour_name(bad), r"colour must be an int; got .*; name a palette index in "
+                                                     r"\[0, 72\)|colour -1 is not a palette index \(an int in \[0, 72\)\)")
 
 
 @pytest.mark.parametrize("size", [0, 2.5])
 def test_a_palette_of_no_hues_is_refused(size):
-    one_line_error(lambda: palette.PaletteConfig(size=size), "palette needs whole numbers size >= 1")
+    one_line_error(lambda: palette.PaletteConfig(size=size), "palette needs whole numbers size >= 1|palette size must "
+                                                             "be an int; got 2.5")
+    assert type(palette.PaletteConfig(size=np.int64(48)).size) is int        # a plain int, as JSON saves it

@@ -20,7 +20,6 @@ of worker processes, is the same file (`npz.write`). `load` checks the file as `
 metadata the package reads and a SHA-256 checksum of the arrays, and says exactly what is wrong with
 a bad, damaged or truncated file: every failure is a DatasetError naming the file.
 """
-import hashlib
 import json
 import os
 
@@ -67,13 +66,8 @@ class DatasetError(ValueError):
 
 
 def checksum(arrays):
-    """SHA-256 over the arrays of ARRAYS (dtype, shape and bytes, in a fixed order). -> hex str."""
-    h = hashlib.sha256()
-    for key in ARRAYS:
-        a = np.ascontiguousarray(arrays[key])
-        h.update(f"{key}:{a.dtype.str}:{a.shape};".encode())
-        h.update(a.data)
-    return h.hexdigest()
+    """SHA-256 over the arrays of ARRAYS, in that order (`npz.checksum`). -> hex str."""
+    return npz.checksum(arrays, ARRAYS)
 
 
 def layout_of(arrays):
@@ -213,10 +207,10 @@ def load(path):
     except files.RefusedPath as e:
         raise DatasetError(str(e)) from None
     validate(data, source)
-    check_colours(data, meta, source)
     if checksum(data) != meta.get("checksum"):
         raise DatasetError(f"{path!r} fails its checksum: the arrays were changed or damaged after "
                            f"saving; {FIX}")
+    check_colours(data, meta, source)
     data["metadata"] = meta
     return data
 

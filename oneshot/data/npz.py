@@ -3,6 +3,7 @@ arrays are the same bytes, read without trusting the file. Datasets (data/datase
 (training/checkpoint.py) are such files.
 
     npz.write(f, {"x": x, "y": y})                 # f: a binary file; one .npy member per array
+    npz.checksum({"x": x, "y": y}, ["x", "y"])     # what the file records of its arrays
     arrays = npz.read("a.npz")                     # {"x": x, "y": y}
     with npz.Reader("a.npz") as archive:           # to look before reading gigabytes:
         dtype, shape = archive.layout["x"]         # from the .npy header alone, nothing read yet
@@ -17,6 +18,7 @@ its member's end, where zipfile checks the CRC-32. Whatever is wrong with the fi
 `Damaged` (a ValueError) saying what, for the caller to name the file and the fix.
 """
 import contextlib
+import hashlib
 import math
 import os
 import warnings
@@ -38,6 +40,17 @@ CHUNK = 1 << 18                       # bytes read at a time into an array (as n
 class Damaged(ValueError):
     """An .npz file is truncated, corrupt or was not written as an .npz of arrays; the message says
     what is wrong (not which file: the caller knows that, and the fix)."""
+
+
+def checksum(arrays, names):
+    """SHA-256 over the arrays `names` of `arrays`, in that order: each one's name, dtype, shape and bytes.
+    -> hex str. What a dataset or checkpoint records, to tell its arrays changed since it was written."""
+    h = hashlib.sha256()
+    for name in names:
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
+        h.update(a.data)
+    return h.hexdigest()
 
 
 def write(file, arrays, compress=True):

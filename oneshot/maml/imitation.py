@@ -17,6 +17,7 @@ from tqdm import tqdm
 from oneshot.maml import inner
 from oneshot.data.datasets import world_config
 from oneshot.policy import inputs
+from oneshot.tools.checks import real_number, whole_number
 from oneshot.policy.network import STRIDE, forward, images_to_float
 from oneshot.world.reach import ReachWorld, closest_object, is_success, observation_state
 
@@ -27,10 +28,9 @@ STATE_SCALE = np.array([np.pi, np.pi, 10.0, 10.0, 0.2, 0.2], np.float32)
 def prepare_demos(images, states, actions, max_torque):
     """Dataset arrays -> network units. images (..., T, H, W, 3) uint8, states (..., T, 6),
     actions (..., T, 2) N m -> (images float32 in [0, 1], states / STATE_SCALE, actions / max_torque)."""
-    if isinstance(max_torque, (bool, np.bool_)) or not isinstance(max_torque, numbers.Real) \
-            or not 0 < max_torque < np.inf:
-        raise ValueError(f"max_torque must be the arm's torque bound, a number of N m > 0 (the dataset's "
-                         f"world: ArmConfig.max_torque, 0.5 by default); got {max_torque!r}")
+    fix = "the arm's torque bound in N m > 0 (the dataset's world: ArmConfig.max_torque, 0.5 by default)"
+    if real_number("max_torque", max_torque, f"pass {fix}") <= 0:
+        raise ValueError(f"max_torque must be {fix}; got {max_torque!r}")
     images, states, actions = np.asarray(images), np.asarray(states), np.asarray(actions)
     if images.ndim < 4:
         raise ValueError(f"images must be (..., T, H, W, 3) uint8, a demo's frames; got {images.shape}")
@@ -77,9 +77,9 @@ class PolicyDiverged(ValueError):
 def adapt(params, demo, alpha=0.001, steps=3, **options):
     """One-shot adaptation (eq. 1 with eq. 2 as its loss) to a single demo (images, states, actions) in
     network units: `inner.inner_update`, whose options (first_order, only, ...) pass through. The demo
-    is checked first (`inputs.check_demo`): camera images in 0..255, say, would make a step 255 times
+    is checked first (`inputs.check_adapt_demo`): camera images in 0..255, say, would make a step 255 times
     too large and a policy that fails without saying why."""
-    return inner.inner_update(params, inputs.check_demo(params, demo, STRIDE), imitation_loss, alpha, steps,
+    return inner.inner_update(params, inputs.check_adapt_demo(params, demo, STRIDE), imitation_loss, alpha, steps,
                               **options)
 
 
@@ -167,8 +167,7 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
     "wrong_object": m}}: a failed trial is a near miss when the end effector's closest object over the
     final fifth was the target, else it went to a distractor.
     """
-    if isinstance(trials_per_colour, bool) or not isinstance(trials_per_colour, numbers.Integral) \
-            or trials_per_colour < 1:
+    if whole_number("trials_per_colour", trials_per_colour, "pass a count >= 1") < 1:
         raise ValueError(f"trials_per_colour must be an int >= 1; got {trials_per_colour!r}")
     meta = dataset["metadata"]
     world_cfg = world_config(meta)

@@ -27,19 +27,16 @@ from autograd import grad, value_and_grad
 from autograd.extend import defvjp, primitive
 from autograd.tracer import getval
 
+from oneshot.tools.checks import real_number
+
 
 def check_step(alpha, steps):
     """Validate inner-loop settings (alpha >= 0 finite, steps an int >= 0); return alpha as a python
     float, which keeps float32 parameters float32 (NumPy 2's weak scalars)."""
     if isinstance(steps, bool) or not isinstance(steps, numbers.Integral) or steps < 0:   # np.int64 too
         raise ValueError(f"inner steps must be a non-negative int; got {steps!r}")
-    try:
-        if isinstance(alpha, (str, bytes, bool, np.bool_)):       # float("0.1") would take a string
-            raise TypeError
-        alpha = float(alpha)
-    except TypeError:
-        raise ValueError(f"inner step size alpha must be a real number; got {alpha!r}") from None
-    if not np.isfinite(alpha) or alpha < 0:
+    alpha = real_number("inner step size alpha", alpha, "pass a real number >= 0")
+    if alpha < 0:
         raise ValueError(f"inner step size alpha must be finite and >= 0; got {alpha!r}")
     return alpha
 
@@ -56,10 +53,11 @@ def adapted_keys(params, only=None, frozen=()):
     in `only` (e.g. ("conv",): adapt the convolution layers only; the rest stays shared), but none
     starting with a prefix in `frozen` (parameters that never adapt, e.g. the layer norm's offsets in
     MIL's released code). Learnt step sizes (STEP_PREFIX keys) are never adapted."""
+    # An `only` prefix naming nothing is a typo; a `frozen` one is harmless (a profile's "ln" without LN).
     typos = [] if only is None else unmatched(params, only)
-    if typos:                                 # (a `frozen` prefix naming nothing is harmless: a profile's "ln"
+    if typos:
         raise ValueError(f"no parameter starts with {typos} of only={tuple(only)} (a typo?); the parameters are "
-                         f"{list(params)}")                                                     # without LN)
+                         f"{list(params)}")
     keys = [k for k in params if not k.startswith(STEP_PREFIX) and (only is None or k.startswith(tuple(only)))
             and not k.startswith(tuple(frozen))]
     if not keys:
@@ -121,7 +119,8 @@ class InnerLoop:
         object.__setattr__(self, "alpha", check_step(self.alpha, self.steps))
         object.__setattr__(self, "steps", int(self.steps))
         if self.only is not None:
-            if isinstance(self.only, str) or not all(isinstance(p, str) for p in self.only):
+            if isinstance(self.only, str) or not isinstance(self.only, (tuple, list)) \
+                    or not all(isinstance(p, str) for p in self.only):
                 raise ValueError(f"only must be None or a tuple of key prefixes; got {self.only!r}")
             object.__setattr__(self, "only", tuple(self.only))
         if not isinstance(self.first_order, (bool, np.bool_)):
@@ -132,8 +131,8 @@ class InnerLoop:
         object.__setattr__(self, "frozen", tuple(self.frozen))
         for name in ("clip", "loss_scale"):
             given = getattr(self, name)
-            value = float(given) if isinstance(given, numbers.Real) and not isinstance(given, bool) else np.nan
-            if not (np.isfinite(value) and value >= 0) or (name == "loss_scale" and value == 0):
+            value = real_number(name, given, f"pass a number {'> 0' if name == 'loss_scale' else '>= 0 (0: off)'}")
+            if value < 0 or (name == "loss_scale" and value == 0):
                 raise ValueError(f"{name} must be finite and {'> 0' if name == 'loss_scale' else '>= 0 (0: off)'}; "
                                  f"got {getattr(self, name)!r}")
             object.__setattr__(self, name, value)

@@ -11,7 +11,7 @@ import numpy as np
 
 from oneshot.maml import batched, imitation
 from oneshot.methods.base import Method
-from oneshot.policy import network
+from oneshot.policy import inputs, network
 from oneshot.policy.network import forward
 
 
@@ -34,7 +34,9 @@ def contextual_loss(params, adapt, evaluate):
 
 def contextual_policy(params, demo):
     """The contextual policy conditioned on one demo (images (T, H, W, 3), ...): a function
-    (image (1, H, W, 3), state (1, 6), scene) -> action (1, 2) for `imitation.rollout`."""
+    (image (1, H, W, 3), state (1, 6), scene) -> action (1, 2) for `imitation.rollout`. The demo is
+    checked first (`inputs.check_demo`: network units)."""
+    inputs.check_demo(demo)
     context = demo[0][-1]
     return lambda image, state, scene: forward(params, contextual_images(image, context), state)
 

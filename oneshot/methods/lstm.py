@@ -13,7 +13,7 @@ import numpy as np
 
 from oneshot.maml import batched
 from oneshot.methods.base import Method
-from oneshot.policy import network
+from oneshot.policy import inputs, network
 from oneshot.policy.layers import add_bias, concat_last, matmul
 from oneshot.policy.network import head, init_params, trunk
 
@@ -93,7 +93,9 @@ def lstm_loss(params, adapt, evaluate):
 
 def lstm_policy(params, demo):
     """The LSTM policy after reading one demo (images (T, H, W, 3), ...): a function (image (1, H, W, 3),
-    state (1, 6), scene) -> action (1, 2) for `imitation.rollout`."""
+    state (1, 6), scene) -> action (1, 2) for `imitation.rollout`. The demo is checked first
+    (`inputs.check_demo`: network units)."""
+    inputs.check_demo(demo)
     summary = lstm_summary(params, tuple(a[None] for a in demo))                  # (1, units)
     return lambda image, state, scene: lstm_act(params, summary, image[None], state[None])[0]
 

@@ -25,8 +25,7 @@ def check(params, images, states, task_axes, stride):
     check_params(params)
     conv0_w = params["conv0_w"]
     dtype, c_img = conv0_w.dtype, conv0_w.shape[-2]
-    boxed = isbox(images) or isbox(states)      # differentiated with respect to them (e.g. a saliency map)
-    given_images, given_states = images, states
+    given_images, given_states = images, states     # boxes, if differentiated with respect to them (saliency)
     images, states = np.asarray(getval(images)), np.asarray(getval(states))
     want = "(T, H, W, 3)" if task_axes == 0 else "(B, T, H, W, 3)"
     if images.dtype == np.uint8:
@@ -73,27 +72,49 @@ def check(params, images, states, task_axes, stride):
     check_pixels(images, want)
     if not np.all(np.isfinite(states)):
         raise ValueError(f"states must be finite; they hold NaN or inf (states {states.shape})")
-    if boxed:                                   # autograd follows them as they are
-        return given_images, given_states
-    return images.astype(dtype, copy=False), states.astype(dtype, copy=False)
+    return _cast(given_images, images, dtype), _cast(given_states, states, dtype)
 
 
-def check_demo(params, demo, stride):
-    """`check` for a demonstration (images (T, H, W, 3) float in [0, 1], states (T, 6), actions (T, 2)
-    in network units: `imitation.prepare_demos`), with the actions' shape and values too; returns the
-    demo cast to the parameters' dtype."""
+def _cast(given, value, dtype):
+    """`given` in `dtype`: through autograd's astype if it is differentiated (a box), else its array `value`."""
+    if isbox(given):
+        return given if getval(given).dtype == dtype else given.astype(dtype)
+    return value.astype(dtype, copy=False)
+
+
+def check_demo(demo):
+    """Raise ValueError unless `demo` is one demonstration in network units (`imitation.prepare_demos`):
+    (images (T, H, W, C) float in [0, 1], states (T, S) and actions (T, A) float, finite), T >= 1. What
+    every method's conditioner takes; camera images in 0..255 would make eq. (1)'s step 255 times too
+    large, or a baseline's input, and a policy that fails without saying why."""
     if not (isinstance(demo, (tuple, list)) and len(demo) == 3):
         raise ValueError(f"a demo is (images, states, actions) in network units (imitation.prepare_demos); got "
                          f"{type(demo).__name__}{' of ' + str(len(demo)) if isinstance(demo, (tuple, list)) else ''}")
+    images, states, actions = (np.asarray(getval(a)) for a in demo)
+    if images.dtype == np.uint8:
+        raise ValueError(f"demo images must be (T, H, W, 3) float in [0, 1]; got uint8 {images.shape}: "
+                         f"imitation.prepare_demos converts a dataset's demo")
+    if images.ndim != 4 or not images.shape[0] or not np.issubdtype(images.dtype, np.floating):
+        raise ValueError(f"demo images must be (T, H, W, 3) float in [0, 1] with T >= 1; got {images.shape} {images.dtype}")
+    check_pixels(images, "(T, H, W, 3)")
+    for name, a in (("states", states), ("actions", actions)):
+        if a.ndim != 2 or a.shape[0] != images.shape[0] or not np.issubdtype(a.dtype, np.floating):
+            raise ValueError(f"demo {name} must be ({images.shape[0]}, n) float to match images {images.shape} "
+                             f"(network units: imitation.prepare_demos); got {a.shape} {a.dtype}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"demo {name} must be finite; they hold NaN or inf ({name} {a.shape})")
+
+
+def check_adapt_demo(params, demo, stride):
+    """`check_demo`, and the demo against the network's parameters (`check`, and the actions' width): the
+    demo eq. (1) adapts on, cast to the parameters' dtype."""
+    check_demo(demo)
     images, states = check(params, demo[0], demo[1], 0, stride)
-    actions = np.asarray(getval(demo[2]))
-    n_out = params["out_b"].shape[-1]
-    if actions.shape != (images.shape[0], n_out) or not np.issubdtype(actions.dtype, np.floating):
+    actions, n_out = np.asarray(getval(demo[2])), params["out_b"].shape[-1]
+    if actions.shape[-1] != n_out:
         raise ValueError(f"actions must be {(images.shape[0], n_out)} float (torques divided by the torque bound: "
                          f"imitation.prepare_demos) to match images {images.shape}; got {actions.shape} {actions.dtype}")
-    if not np.all(np.isfinite(actions)):
-        raise ValueError(f"actions must be finite; they hold NaN or inf (actions {actions.shape})")
-    return images, states, demo[2] if isbox(demo[2]) else actions.astype(params["out_b"].dtype, copy=False)
+    return images, states, _cast(demo[2], actions, params["out_b"].dtype)
 
 
 def check_params(params):

@@ -62,7 +62,7 @@ def marked_frame(frame, scale=4, target=None, radius=3.0, dashes=12, hand=None, 
 def episode_marks(episodes, cfg):
     """What pictures mark in recorded episodes, as keyword arguments of `filmstrip` and `side_by_side`.
 
-    episodes: dicts with "scene" (`oneshot.world.reach.Scene`) and "states" (T, 6) (an expert demo:
+    episodes: dicts with "scene" (`oneshot.world.scene.Scene`) and "states" (T, 6) (an expert demo:
     `oneshot.world.reach.observation_state` of each frame) or "end_effector" (T, 2) m after each step (a
     policy's rollout); cfg: the WorldConfig they were recorded in. Returns {"targets": each episode's
     target centre (x, y), "hands": each episode's (T, 2) hand in every frame, "base": (x, y), "radius":

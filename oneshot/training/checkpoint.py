@@ -19,7 +19,6 @@ Whether a dataset is one the policy can be run on (the same image size, horizon,
 palette) is `training.fit_check.check_data`.
 """
 import dataclasses
-import hashlib
 import json
 import math
 import os
@@ -57,13 +56,8 @@ class CheckpointError(ValueError):
 
 
 def checksum(arrays):
-    """SHA-256 over a checkpoint's arrays (name, dtype, shape and bytes, in name order). -> hex str."""
-    h = hashlib.sha256()
-    for name in sorted(arrays):
-        a = np.ascontiguousarray(arrays[name])
-        h.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
-        h.update(a.data)
-    return h.hexdigest()
+    """SHA-256 over a checkpoint's arrays, in name order (`npz.checksum`). -> hex str."""
+    return npz.checksum(arrays, sorted(arrays))
 
 
 def save(path, params, adam_state, iteration, rng, cfg, net_cfg, ema=None, world=None, seconds=None):
@@ -89,12 +83,14 @@ def save(path, params, adam_state, iteration, rng, cfg, net_cfg, ema=None, world
             "network": dataclasses.asdict(net_cfg), "world": world,
             "state_layout": list(datasets.STATE_LAYOUT), "seconds": seconds,
             "checksum": checksum(arrays), "format_version": FORMAT_VERSION}
-    try:                                   # what load would refuse is not written
-        _parse(os.fspath(path), {"meta": np.array(json.dumps(meta)), **arrays})
+    arrays["meta"] = np.array(json.dumps(meta))
+    try:                                          # what load would refuse is not written; load's own advice
+        _parse(os.fspath(path), dict(arrays))     # (re-train...) does not fit: the arguments do
     except CheckpointError as e:
-        raise ValueError(f"checkpoint.save would write a file that checkpoint.load refuses: {e}") from None
+        raise ValueError(f"checkpoint.save would write a file that checkpoint.load refuses: {str(e).rsplit('; ', 1)[0]}; "
+                         f"fix what is passed to checkpoint.save (params, ema, net_cfg, cfg, iteration, world)") from None
     with atomic_write(path) as f:
-        npz.write(f, {"meta": np.array(json.dumps(meta)), **arrays}, compress=False)
+        npz.write(f, arrays, compress=False)
 
 
 def load(path):
@@ -121,8 +117,7 @@ def load(path):
 
 
 def _parse(path, arrays):
-    """`load`'s checks and result, from the file's arrays ({"meta": the JSON metadata, name: array})."""
-    arrays = dict(arrays)
+    """`load`'s checks and result, from the file's arrays ({"meta": the JSON metadata, name: array}; taken)."""
     if "meta" not in arrays and "metadata" in arrays and "images" in arrays:
         raise CheckpointError(f"{path!r} is a dataset of demonstrations, not a checkpoint; load it with "
                               f"oneshot.data.datasets.load, or name a checkpoint of `python -m oneshot.train`")

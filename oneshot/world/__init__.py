@@ -3,6 +3,7 @@
     arm       the analytic arm (kinematics, dynamics and their derivatives), what the expert plans on
     palette   the colours, and so the tasks, split into meta-training, validation and test colours
     render    the 32x32 RGB image the policy sees
-    reach     the Pymunk world: scenes, observations, the success criterion
+    scene     a scene: the target and distractor discs of one episode, checked or sampled
+    reach     the Pymunk world: observations, steps, the success criterion
     gym       the same world as a Gymnasium environment (optional extra)
 """

@@ -38,11 +38,11 @@ import numpy as np
 
 from oneshot import GYM_ENV_ID as ENV_ID  # noqa: F401 (re-exported: the id, here too)
 from oneshot.tools import viz
+from oneshot.tools.checks import whole_number
 from oneshot.world import palette, render
 from oneshot.world.palette import PaletteConfig
-from oneshot.world.reach import ReachWorld, WorldConfig, check_int
+from oneshot.world.reach import ReachWorld, WorldConfig
 
-OPTIONS = ("target_colour", "scene")
 RENDER_SCALE = 4          # render() shows each image pixel as a 4x4 block: 128x128 for 32x32 images
 
 
@@ -75,7 +75,7 @@ def vector_env(num_envs=1, max_episode_steps=None, **kwargs):
     (each world is its own Pymunk space, so there is nothing to batch). make_vec passes the spec's
     max_episode_steps, which must equal the horizon, where the env truncates itself.
     """
-    num_envs = check_int("num_envs", num_envs, "pass a positive number of environments")
+    num_envs = whole_number("num_envs", num_envs, "pass a positive number of environments")
     if num_envs < 1:
         raise ValueError(f"num_envs must be at least 1; got {num_envs}")
     horizon = kwargs.get("horizon", WorldConfig().horizon)
@@ -125,21 +125,16 @@ class ReachEnv(gymnasium.Env):
 
     def reset(self, *, seed=None, options=None):
         """Start an episode in a new scene. options: {"target_colour": palette index} (this episode's
-        task, overriding the constructor's) or {"scene": oneshot.world.reach.Scene}. Returns (obs, info).
+        task, overriding the constructor's) or {"scene": oneshot.world.scene.Scene}. Returns (obs, info).
 
         The world's seed is drawn from `self.np_random`, so seeding follows Gymnasium: reset(seed=s)
         gives the same scene every time, and later resets without a seed continue that stream.
         """
         super().reset(seed=seed)
-        if options is not None and not isinstance(options, dict):
-            raise ValueError(f"reset options must be a dict, e.g. {{'target_colour': 9}}; got {type(options).__name__}")
-        options = dict(options or {})
-        unknown = set(options) - set(OPTIONS)
-        if unknown:
-            raise ValueError(f"unknown reset options {sorted(unknown)}; use {OPTIONS}")
-        if "scene" not in options and options.get("target_colour") is None:
+        options = {} if options is None else dict(options) if isinstance(options, dict) else options  # the world
+        # checks what it is, and the scene or target colour (it copies the scene), as for any caller
+        if isinstance(options, dict) and "scene" not in options and options.get("target_colour") is None:
             options["target_colour"] = self.target_colour
-        # The world checks the scene or target colour (and copies the scene), as it does for any caller.
         world_seed = int(self.np_random.integers(2 ** 63))
         obs, info = self.world.reset(seed=world_seed, options=options)
         return self._observation(obs), self._info(info)

@@ -54,6 +54,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from oneshot.tools.checks import whole_number
+
 SPLITS = ("train", "validation", "test")
 LEGACY_SPLITS = {"heldout": "validation"}   # what older datasets and checkpoints call a split
 MODES = ("hues", "grid")
@@ -94,9 +96,9 @@ class PaletteConfig:
             if not levels or not all(0 < x <= 1 for x in levels):
                 raise ValueError(f"palette {name} must be a non-empty sequence in (0, 1]; got {levels}")
             object.__setattr__(self, name, levels)
-        if not all(isinstance(getattr(self, n), (int, np.integer)) and not isinstance(getattr(self, n), bool)
-                   for n in ("size", "heldout_every", "guard")) or self.size < 1 or self.heldout_every < 1 \
-                or self.guard < 0:
+        for name in ("size", "heldout_every", "guard"):       # plain ints, as JSON saves them
+            object.__setattr__(self, name, whole_number(f"palette {name}", getattr(self, name), "pass a whole number"))
+        if self.size < 1 or self.heldout_every < 1 or self.guard < 0:
             raise ValueError(f"palette needs whole numbers size >= 1, heldout_every >= 1 and guard >= 0; "
                              f"got {self.size!r}, {self.heldout_every!r}, {self.guard!r}")
         triples = tuple(tuple(float(x) for x in t) for t in self.test_colours)
@@ -207,7 +209,8 @@ def hue_distance_deg(i, j, cfg=PaletteConfig()):
 
 def colour_name(i, cfg=PaletteConfig()):
     """A short name for pictures and tables: "hue 30 deg"; in grid mode "hue 30 deg, sat 0.75, val 0.8"."""
-    if isinstance(i, (bool, np.bool_)) or not isinstance(i, (int, np.integer)) or not 0 <= i < n_colours(cfg):
+    whole_number("colour", i, f"name a palette index in [0, {n_colours(cfg)})")
+    if not 0 <= i < n_colours(cfg):
         raise ValueError(f"colour {i!r} is not a palette index (an int in [0, {n_colours(cfg)}))")
     name = f"hue {float(colour_hue_deg(i, cfg)):g} deg"
     if cfg.mode == "hues":
@@ -219,9 +222,7 @@ def colour_name(i, cfg=PaletteConfig()):
 def check_colour(colour, split, cfg=PaletteConfig(), name="colour"):
     """Raise ValueError unless `colour` is a palette index belonging to `split`: a Python or NumPy int, not
     a bool (which NumPy reads as 0 or 1) nor a float. name: what the message calls it."""
-    if isinstance(colour, (bool, np.bool_)) or not isinstance(colour, (int, np.integer)):
-        raise ValueError(f"{name} must be an int; got {colour!r} ({type(colour).__name__}); "
-                         f"choose one of oneshot.world.palette.split_colours({split!r})")
+    whole_number(name, colour, f"choose one of oneshot.world.palette.split_colours({split!r})")
     allowed = split_colours(split, cfg)
     if colour not in allowed:
         shown = allowed.tolist() if len(allowed) <= 48 else f"split_colours({split!r}, cfg) ({len(allowed)})"

@@ -19,23 +19,19 @@ meta-gradient cheap (its cost grows linearly with the number of frames). Success
 0.05 distance of the goal") is judged on the final fifth of the episode, as in MIL's released code
 (last 10 of 50 steps): here the last 4 of 20.
 """
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import pymunk
 
+from oneshot.tools.checks import real_number, whole_number
 from oneshot.world import palette, render
 from oneshot.world.arm import ArmConfig
 from oneshot.world.palette import PaletteConfig
+from oneshot.world.scene import Scene, check_scene, sample_scene
 
 
-def check_int(name, value, fix):
-    """`value` as an int if it is a Python or NumPy integer (not a bool, which is 0 or 1 to NumPy, nor a
-    float); else ValueError naming `name` and `fix`."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name} must be an int; got {value!r} ({type(value).__name__}); {fix}")
-    return int(value)
+RESET_OPTIONS = ("target_colour", "scene")    # what `ReachWorld.reset` takes
 
 
 @dataclass(frozen=True)
@@ -60,7 +56,7 @@ class WorldConfig:
         for name, fix in (("image_size", "pass the image's side in pixels, e.g. 32"),
                           ("horizon", "pass the number of steps per episode, e.g. 20"),
                           ("n_objects", "pass the number of discs per scene, e.g. 3")):
-            object.__setattr__(self, name, check_int(name, getattr(self, name), fix))
+            object.__setattr__(self, name, whole_number(name, getattr(self, name), fix))
         if self.image_size < 8:
             raise ValueError(f"image_size must be at least 8 pixels; got {self.image_size}")
         if self.horizon < 5:
@@ -68,11 +64,10 @@ class WorldConfig:
                              f"got {self.horizon}")
         for name in ("arena_half_width", "object_radius", "min_object_radius", "max_object_radius",
                      "success_radius", "min_separation", "start_noise"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                    or value < 0 or (value == 0 and name != "start_noise"):
-                raise ValueError(f"{name} must be a finite number of {'radians' if name == 'start_noise' else 'metres'} "
-                                 f"{'>= 0' if name == 'start_noise' else '> 0'}; got {value!r}")
+            least, unit = (">= 0", "radians") if name == "start_noise" else ("> 0", "metres")
+            value = real_number(name, getattr(self, name), f"pass {unit} {least}")
+            if value < 0 or (value == 0 and least == "> 0"):
+                raise ValueError(f"{name} must be {least} {unit}; got {value!r}")
         if self.n_objects < 1:
             raise ValueError(f"n_objects must be at least 1 (the target); got {self.n_objects}")
         if not self.min_object_radius < self.max_object_radius <= self.arena_half_width - self.object_radius:
@@ -82,7 +77,8 @@ class WorldConfig:
         if self.min_separation <= 2 * self.success_radius:
             raise ValueError("min_separation must exceed 2 * success_radius, or success is ambiguous")
         if self.image_size > 1024:
-            raise ValueError(f"image_size must be at most 1024 pixels (the policy sees 32); got {self.image_size}")
+            raise ValueError(f"image_size must be at most 1024 pixels (the policy's images are 32 or 64); got "
+                             f"{self.image_size}")
         palette.split_colours(self.split, self.palette)   # validates the split name
 
 
@@ -112,70 +108,6 @@ def closest_object(end_effector, positions):
     window = end_effector[-success_window(len(end_effector)):]
     d = np.linalg.norm(window[:, None, :] - positions[None], axis=-1).min(axis=0)  # (n,) min over window
     return int(np.argmin(d)), float(d.min())
-
-
-@dataclass(frozen=True)
-class Scene:
-    """One arrangement: colours (n,) palette indices, positions (n, 2) metres, target index."""
-    colours: np.ndarray
-    positions: np.ndarray
-    target: int = 0
-
-    @property
-    def target_colour(self):
-        return int(self.colours[self.target])
-
-    @property
-    def target_position(self):
-        return self.positions[self.target]
-
-
-def check_scene(scene, cfg):
-    """A copy of `scene` (so that writing into the caller's arrays cannot move the world's discs), if it is
-    a `Scene` the world can show: colours (n,) integer palette indices, positions (n, 2) finite metres
-    inside the arena, an int target index; else a ValueError naming the reset option and the fix."""
-    fix = "build one with oneshot.world.reach.Scene(colours, positions, target), or sample_scene"
-    if not isinstance(scene, Scene):
-        raise ValueError(f"reset option 'scene' must be a oneshot.world.reach.Scene; got {type(scene).__name__}; {fix}")
-    colours, positions = np.asarray(scene.colours), np.asarray(scene.positions)
-    if colours.dtype.kind not in "iu":
-        raise ValueError(f"reset option 'scene': colours must be integer palette indices; got {colours.dtype} "
-                         f"{colours.tolist()}; pass np.array(colours, dtype=int)")
-    a = cfg.arena_half_width
-    if positions.dtype.kind not in "iuf" or not np.all(np.abs(positions) <= a):     # False for NaN too
-        raise ValueError(f"reset option 'scene': positions must be finite metres inside the arena [-{a}, {a}]^2; "
-                         f"got {positions.tolist()}; replace the NaN, inf or outside positions")
-    target = check_int("reset option 'scene': target", scene.target, "pass the index of the target object")
-    if colours.ndim != 1 or positions.shape != (len(colours), 2):
-        raise ValueError(f"scene needs colours (n,) and positions (n, 2); "
-                         f"got {colours.shape} and {positions.shape}")
-    if not 0 <= target < len(colours):
-        raise ValueError(f"scene target index {target} is out of range for {len(colours)} objects")
-    n = palette.n_colours(cfg.palette)
-    if colours.min() < 0 or colours.max() >= n:
-        raise ValueError(f"scene colours must be palette indices in [0, {n}); got {colours}")
-    return Scene(colours.copy(), positions.astype(np.result_type(positions, float)), target)
-
-
-def sample_positions(n, rng, cfg):
-    """n reachable object positions, pairwise more than cfg.min_separation apart. -> (n, 2) metres."""
-    for _ in range(10000):
-        r = np.sqrt(rng.uniform(cfg.min_object_radius ** 2, cfg.max_object_radius ** 2, n))
-        a = rng.uniform(-np.pi, np.pi, n)
-        p = np.stack([r * np.cos(a), r * np.sin(a)], -1)
-        d = np.linalg.norm(p[:, None] - p[None], axis=-1) + np.eye(n) * 1e9
-        if d.min() > cfg.min_separation:
-            return p
-    raise ValueError(f"could not place {n} objects {cfg.min_separation} m apart; "
-                     f"lower n_objects or min_separation")
-
-
-def sample_scene(target_colour, rng, cfg):
-    """A random scene for the task `target_colour` (a palette index of cfg.split)."""
-    colours = palette.sample_scene_colours(target_colour, cfg.n_objects, cfg.split, rng, cfg.palette)
-    positions = sample_positions(cfg.n_objects, rng, cfg)
-    order = rng.permutation(cfg.n_objects)          # the target is not always object 0
-    return Scene(colours=colours[order], positions=positions, target=int(np.argmin(order)))
 
 
 def observation_state(obs):
@@ -220,6 +152,9 @@ class ReachWorld:
         if not isinstance(options, dict):
             raise ValueError(f"reset options must be a dict, {{'scene': Scene}} or {{'target_colour': palette index}}; "
                              f"got {type(options).__name__}")
+        unknown = set(options) - set(RESET_OPTIONS)
+        if unknown:
+            raise ValueError(f"unknown reset options {sorted(unknown)}; use {RESET_OPTIONS}")
         if "scene" in options and options.get("target_colour") is not None:
             raise ValueError("reset options 'scene' and 'target_colour' both name the target: pass one of them "
                              "(a scene's target colour is its own)")
