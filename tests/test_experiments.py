@@ -374,11 +374,32 @@ def test_summarise_refuses_a_damaged_summary_in_one_line(tmp_path, capsys, text,
     assert (tmp_path / "summary.json").read_text() == text
 
 
+def test_cli_sizes_sweeps_one_point_first_into_files_of_its_own(tmp_path, capsys, tiny_argv):
+    """--sizes N: only the runs of that size (e.g. the headline point before the rest), in files named for
+    it; the whole sweep afterwards does the others and not these again."""
+    size = 12
+    assert command.main(tiny_argv + ["--sizes", str(size), "--seeds", "1"]) == 0
+    chosen = [r for r in plan(TINY) if r.size == size and r.seed == 1]
+    assert 0 < len(chosen) < len(plan(TINY)) and calls(tmp_path / "w") == len(chosen)
+    assert sorted(d for d in os.listdir(tmp_path / "w") if not d.startswith(".")) == sorted(r.run_id for r in chosen)
+    summary = json.loads((tmp_path / "out" / f"summary_seeds1_sizes{size}.json").read_text())
+    assert summary["runs"] == len(chosen) and summary["config"]["sizes"] == [[3, 4]]
+    assert all(point["size"] == size for points in summary["methods"].values() for point in points)
+    assert not (tmp_path / "out" / "summary.json").exists()
+    assert (tmp_path / "out" / f"fig2_seeds1_sizes{size}.png").exists() == command.PLOTS
+    assert command.main(tiny_argv + ["--sizes", "12", "9"]) == 0              # every size: the whole figure
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["runs"] == len(plan(TINY))
+    assert calls(tmp_path / "w") == len(plan(TINY))                           # the first runs not redone
+
+
 @pytest.mark.parametrize("argv, message", [
     (["fig2", "--profile", "tiny", "--seeds", "7"], "--seeds must be distinct seeds of the tiny profile, [0, 1]"),
     (["fig2", "--profile", "tiny", "--seeds", "0", "0"], "--seeds must be distinct"),
     (["fig2", "--profile", "tiny", "--lines", "mil-conv0", "nope"], "--lines must be distinct lines of the tiny profile"),
     (["fig2", "--profile", "tiny", "--lines", "lstm", "lstm"], "--lines must be distinct lines"),
+    (["fig2", "--profile", "tiny", "--sizes", "10"], "--sizes must be distinct sizes of the tiny profile, in "
+                                                     "demonstrations (9, 12); got 10"),
+    (["fig2", "--profile", "tiny", "--sizes", "9", "9"], "--sizes must be distinct sizes"),
     (["fig2", "--profile", "huge"], "invalid choice: 'huge'"),
     (["fig2", "--workers", "0"], "argument --workers: expected a whole number >= 1"),
     (["fig2", "--workers", "2", "--local-cluster", "2"], "not allowed with argument"),

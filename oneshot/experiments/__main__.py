@@ -5,6 +5,7 @@ run scored on the profile's split (`oneshot.experiments.fig2`):
 
     python -m oneshot.experiments fig2 --profile quick                    # 2 runs at a time, this machine
     python -m oneshot.experiments fig2 --profile paper --seeds 0          # one seed's figure first
+    python -m oneshot.experiments fig2 --profile paper --sizes 2304       # one size's point first
     python -m oneshot.experiments fig2 --profile ablation --lines mil-released --seeds 0   # one run again
     python -m oneshot.experiments fig2 --profile paper --local-cluster 4   # Dask, pip install ".[cluster]"
     python -m oneshot.experiments fig2 --profile paper --scheduler tcp://host:8786
@@ -19,7 +20,7 @@ summary.json (per line and size: the mean over seeds and its 95% interval over s
 colours, paired differences between lines; `oneshot.experiments.stats`) and fig2.png (pip install
 ".[plots]"), once every run of the profile has finished; `--seeds 0` does the runs of seed 0 alone and
 writes summary_seeds0.json and fig2_seeds0.png, and `--lines L ...` (with `--seeds`: one run) its own
-summary_<...>_L.json. Each run works in `runs/fig2/<run id>/` (the run id
+summary_<...>_L.json, and `--sizes N ...` (in demonstrations) its own summary_<...>_sizesN.json. Each run works in `runs/fig2/<run id>/` (the run id
 names everything a run depends on). Run the same command again to resume: done runs are skipped,
 interrupted ones continue from their own checkpoints; rows this work folder did not produce (e.g. the
 committed ones of a clone) are run again, never counted as done.
@@ -101,6 +102,10 @@ def main(argv=None):
                    help="only these of the profile's lines (default: all of them), e.g. to reproduce one run: "
                         "--lines mil-released --seeds 0; their summary and figure are summary[_seeds<S>]_<line>_"
                         "<line>....json and .png (many lines: _<N>lines-<hash>)")
+    f.add_argument("--sizes", type=int, nargs="+", default=None, metavar="N",
+                   help="only these of the profile's sizes, in demonstrations (colours x demos per colour; "
+                        "default: all of them), e.g. --sizes 2304 to do one point's runs first; their summary and "
+                        "figure are summary[_seeds<S>][_<line>...]_sizes<N>.json and .png")
     f.add_argument("--no-progress", action="store_true", help="no progress bar")
     f.add_argument("--data-only", action="store_true",
                    help="collect the profile's datasets into --data and stop (e.g. to evaluate a shipped policy)")
@@ -157,6 +162,16 @@ def main(argv=None):
             part += "_" + lines_part(chosen)
             seeds += f", {', '.join(chosen)}"
             cfg = dataclasses.replace(cfg, methods=tuple(chosen))
+    if args.sizes is not None:
+        sizes = {c * d: (c, d) for c, d in cfg.sizes}
+        if set(args.sizes) - set(sizes) or len(set(args.sizes)) != len(args.sizes):
+            f.error(f"--sizes must be distinct sizes of the {cfg.name} profile, in demonstrations "
+                    f"({', '.join(map(str, sorted(sizes)))}); got {' '.join(map(str, args.sizes))}")
+        if set(args.sizes) != set(sizes):
+            chosen = sorted(args.sizes)
+            part += "_sizes" + "-".join(map(str, chosen))
+            seeds += f", {', '.join(map(str, chosen))} demonstrations"
+            cfg = dataclasses.replace(cfg, sizes=tuple(sizes[n] for n in chosen))
     if args.compare:                           # before the sweep: a compare folder to read afterwards
         if not os.path.isfile(os.path.join(args.compare, "runs.csv")):
             f.error(f"argument --compare: {args.compare} holds no runs.csv; name a sweep's results folder, e.g. "
