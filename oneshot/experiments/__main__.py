@@ -266,8 +266,8 @@ def _summarise(folder, argv):
     print(f"{len(rows)} runs: {os.path.join(folder, 'summary.json')}")
     if PLOTS:
         name = (before.get("config") or {}).get("name", "")
-        plot(summary, os.path.join(folder, "fig2.png"), _labels(),
-             title=f"Figure 2 ({name} profile, {len({r['seed'] for r in rows})} seeds)")
+        n = len({r["seed"] for r in rows})
+        plot(summary, os.path.join(folder, "fig2.png"), _labels(), title=f"Figure 2 ({name} profile, {n} seed{'s' * (n > 1)})")
     return 0
 
 

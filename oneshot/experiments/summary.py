@@ -19,6 +19,7 @@ try:
 except ImportError:
     Figure = None
 PLOTS = Figure is not None                     # can `plot` draw here?
+LEGEND_ROW = 0.2                               # inches of figure per row of the legend (`plot`)
 
 
 def _groups(rows):
@@ -209,10 +210,13 @@ def plot(summary, path, labels, title="One-shot imitation of new colours vs. met
     (pip install ".[plots]")."""
     if Figure is None:
         raise RuntimeError('the plot needs matplotlib: pip install ".[plots]"')
-    fig = Figure(figsize=(6.4, 4.4), dpi=150)
+    shown = [m for m in labels if m in summary["methods"]]
+    legend_rows = -(-len(shown) // 2)              # the legend, below the axes in 2 columns: it hides no point
+    height = 4.4 + LEGEND_ROW * legend_rows        # inches
+    fig = Figure(figsize=(6.4, height), dpi=150)
     ax = fig.add_subplot()
     sizes = set()
-    for i, method in enumerate(m for m in labels if m in summary["methods"]):
+    for i, method in enumerate(shown):
         points = summary["methods"][method]
         x = [p["size"] for p in points]
         y = [100 * p["mean_rate"] for p in points]
@@ -230,7 +234,8 @@ def plot(summary, path, labels, title="One-shot imitation of new colours vs. met
     fig.text(0.01, 0.005, "error bars: " + summary.get("interval", "95% intervals"), fontsize=5, color="0.35")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
-    fig.tight_layout()
+    fig.legend(*ax.get_legend_handles_labels(), fontsize=7, loc="lower center", bbox_to_anchor=(0.5, 0.1 / height),
+               ncol=2, frameon=False)
+    fig.tight_layout(rect=(0, (0.15 + LEGEND_ROW * legend_rows) / height, 1, 1))   # room for legend and footnote
     with atomic_write(path) as f:
         fig.savefig(f, format="png")
