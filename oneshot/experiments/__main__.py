@@ -101,11 +101,11 @@ def main(argv=None):
     f.add_argument("--lines", nargs="+", default=None, metavar="LINE",
                    help="only these of the profile's lines (default: all of them), e.g. to reproduce one run: "
                         "--lines mil-released --seeds 0; their summary and figure are summary[_seeds<S>]_<line>_"
-                        "<line>....json and .png (many lines: _<N>lines-<hash>)")
+                        "<line>....json and fig2[...]_<line>....png (many lines: _<N>lines-<hash>)")
     f.add_argument("--sizes", type=int, nargs="+", default=None, metavar="N",
                    help="only these of the profile's sizes, in demonstrations (colours x demos per colour; "
                         "default: all of them), e.g. --sizes 2304 to do one point's runs first; their summary and "
-                        "figure are summary[_seeds<S>][_<line>...]_sizes<N>.json and .png")
+                        "figure are summary[_seeds<S>][_<line>...]_sizes<N>.json and fig2[...]_sizes<N>.png")
     f.add_argument("--no-progress", action="store_true", help="no progress bar")
     f.add_argument("--data-only", action="store_true",
                    help="collect the profile's datasets into --data and stop (e.g. to evaluate a shipped policy)")
@@ -221,7 +221,7 @@ def main(argv=None):
     if not PLOTS:
         print('fig2.png not drawn: the plot needs matplotlib (pip install ".[plots]")')
     elif rows:
-        plot(summary, os.path.join(out, f"fig2{part}.png"), _labels(),
+        plot(summary, os.path.join(out, f"fig2{part}.png"), _labels(cfg.methods),
              title=f"Figure 2 ({cfg.name} profile, {seeds})")
         print(f"figure: {os.path.join(out, f'fig2{part}.png')}")
     if args.compare:
@@ -242,9 +242,9 @@ def _pairs(lines):
     return [(a, b) for a in lines if adapts[a] for b in lines if not adapts[b]]
 
 
-def _labels():
-    """The figure's legend: each line's label, or its name."""
-    return {m: LABELS.get(m, m) for m in LINES}
+def _labels(lines=()):
+    """The figure's legend: each line's label, or its name; `lines` (a profile's) first, in their order."""
+    return {m: LABELS.get(m, m) for m in [*lines, *(m for m in LINES if m not in lines)]}
 
 
 def _summarise(folder, argv):
@@ -267,7 +267,8 @@ def _summarise(folder, argv):
     if PLOTS:
         name = (before.get("config") or {}).get("name", "")
         n = len({r["seed"] for r in rows})
-        plot(summary, os.path.join(folder, "fig2.png"), _labels(), title=f"Figure 2 ({name} profile, {n} seed{'s' * (n > 1)})")
+        plot(summary, os.path.join(folder, "fig2.png"), _labels(lines),
+             title=f"Figure 2 ({name} profile, {n} seed{'s' * (n > 1)})")
     return 0
 
 

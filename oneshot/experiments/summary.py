@@ -19,7 +19,7 @@ try:
 except ImportError:
     Figure = None
 PLOTS = Figure is not None                     # can `plot` draw here?
-LEGEND_ROW = 0.2                               # inches of figure per row of the legend (`plot`)
+LEGEND_ROW = 0.16                              # inches of figure per row of the legend (`plot`)
 
 
 def _groups(rows):
@@ -226,6 +226,8 @@ def plot(summary, path, labels, title="One-shot imitation of new colours vs. met
         sizes.update(x)
     ax.set_xscale("log")
     ax.set_xticks(sorted(sizes), [str(s) for s in sorted(sizes)])
+    if len(sizes) == 1:                        # one point: centred, not where the log scale's limits put it
+        ax.set_xlim(min(sizes) / 2, min(sizes) * 2)
     ax.minorticks_off()
     ax.set_ylim(0, 100)
     ax.set_xlabel("meta-training demonstrations (colours x demos per colour)")
@@ -238,4 +240,4 @@ def plot(summary, path, labels, title="One-shot imitation of new colours vs. met
                ncol=2, frameon=False)
     fig.tight_layout(rect=(0, (0.15 + LEGEND_ROW * legend_rows) / height, 1, 1))   # room for legend and footnote
     with atomic_write(path) as f:
-        fig.savefig(f, format="png")
+        fig.savefig(f, format="png", bbox_inches="tight")   # a long legend label is never cut
