@@ -14,7 +14,7 @@ import pytest
 
 from oneshot import collect, evaluate
 from oneshot.data import datasets
-from oneshot.experiments import __main__ as command, fig2, lines
+from oneshot.experiments import __main__ as command, fig2, lines, parts
 from oneshot.experiments import sweep as sweeping
 from oneshot.training.scoring import wilson_interval
 from oneshot.experiments.fig2 import PROFILES, plan, run_context
@@ -335,10 +335,10 @@ def test_cli_lines_sweeps_some_lines_into_files_of_their_own(tmp_path, capsys, t
 
 def test_many_lines_make_a_short_file_name():
     many = PROFILES["ablation"].methods[:-1]
-    assert command.lines_part(["lstm", "random"]) == "lstm_random"
-    short = command.lines_part(many)
-    assert short.startswith(f"{len(many)}lines-") and len(short) < 30 and short == command.lines_part(many)
-    assert short != command.lines_part(many[:-1])
+    assert parts.lines_part(["lstm", "random"]) == "lstm_random"
+    short = parts.lines_part(many)
+    assert short.startswith(f"{len(many)}lines-") and len(short) < 30 and short == parts.lines_part(many)
+    assert short != parts.lines_part(many[:-1])
 
 
 def test_cli_summarise_redoes_a_finished_sweeps_summary_and_refuses_an_unfinished_one(tmp_path, monkeypatch, capsys,

@@ -32,8 +32,6 @@ also reads a sibling folder: the run a longer line continues, `lines.LONGER`).
 """
 import argparse
 import contextlib
-import dataclasses
-import hashlib
 import os
 import shlex
 import signal
@@ -41,6 +39,7 @@ import sys
 
 from oneshot.experiments.fig2 import PROFILES, ensure_data, load_results, plan, run_context, run_one
 from oneshot.experiments.lines import LABELS, LINES
+from oneshot.experiments.parts import narrow
 from oneshot import methods
 from oneshot.experiments.rows import read_rows
 from oneshot.experiments.ship import add_ship_command, run_ship_command
@@ -143,35 +142,10 @@ def main(argv=None):
         f.error(f"--local-cluster must be >= 1; got {args.local_cluster}")
     if (args.scheduler or args.local_cluster) and distributed is None:
         f.error(f"{'--scheduler' if args.scheduler else '--local-cluster'} needs Dask: pip install \".[cluster]\"")
-    cfg = PROFILES[args.profile]
-    part, seeds = "", f"{len(cfg.seeds)} seed{'s' * (len(cfg.seeds) > 1)}"
-    if args.seeds is not None:
-        if set(args.seeds) - set(cfg.seeds) or len(set(args.seeds)) != len(args.seeds):
-            f.error(f"--seeds must be distinct seeds of the {cfg.name} profile, {list(cfg.seeds)}; got {args.seeds}")
-        if set(args.seeds) != set(cfg.seeds):  # a part of the figure: its own file names
-            chosen = sorted(args.seeds)
-            part = "_seeds" + "-".join(map(str, chosen))
-            seeds = f"seed{'s' * (len(chosen) > 1)} {', '.join(map(str, chosen))} of {len(cfg.seeds)}"
-        cfg = dataclasses.replace(cfg, seeds=tuple(sorted(args.seeds)))
-    if args.lines is not None:
-        if set(args.lines) - set(cfg.methods) or len(set(args.lines)) != len(args.lines):
-            f.error(f"--lines must be distinct lines of the {cfg.name} profile ({', '.join(cfg.methods)}); "
-                    f"got {' '.join(args.lines)}")
-        if set(args.lines) != set(cfg.methods):
-            chosen = [m for m in cfg.methods if m in args.lines]           # the profile's order
-            part += "_" + lines_part(chosen)
-            seeds += f", {', '.join(chosen)}"
-            cfg = dataclasses.replace(cfg, methods=tuple(chosen))
-    if args.sizes is not None:
-        sizes = {c * d: (c, d) for c, d in cfg.sizes}
-        if set(args.sizes) - set(sizes) or len(set(args.sizes)) != len(args.sizes):
-            f.error(f"--sizes must be distinct sizes of the {cfg.name} profile, in demonstrations "
-                    f"({', '.join(map(str, sorted(sizes)))}); got {' '.join(map(str, args.sizes))}")
-        if set(args.sizes) != set(sizes):
-            chosen = sorted(args.sizes)
-            part += "_sizes" + "-".join(map(str, chosen))
-            seeds += f", {', '.join(map(str, chosen))} demonstrations"
-            cfg = dataclasses.replace(cfg, sizes=tuple(sizes[n] for n in chosen))
+    try:
+        cfg, part, seeds = narrow(PROFILES[args.profile], args.seeds, args.lines, args.sizes)
+    except ValueError as e:
+        f.error(str(e))
     if args.compare:                           # before the sweep: a compare folder to read afterwards
         if not os.path.isfile(os.path.join(args.compare, "runs.csv")):
             f.error(f"argument --compare: {args.compare} holds no runs.csv; name a sweep's results folder, e.g. "
@@ -227,13 +201,6 @@ def main(argv=None):
     if args.compare:
         return _compare(rows, args.compare)
     return 0
-
-
-def lines_part(lines):
-    """The part of a summary's file name that names `--lines`: the lines joined by "_", or for many lines
-    (a file name must stay under the 255 bytes of most file systems) "<N>lines-<hash of the names>"."""
-    named = "_".join(lines)
-    return named if len(named) <= 100 else f"{len(lines)}lines-{hashlib.sha256(named.encode()).hexdigest()[:8]}"
 
 
 def _pairs(lines):
