@@ -21,9 +21,10 @@ colours, paired differences between lines; `oneshot.experiments.stats`) and fig2
 ".[plots]"), once every run of the profile has finished; `--seeds 0` does the runs of seed 0 alone and
 writes summary_seeds0.json and fig2_seeds0.png, and `--lines L ...` (with `--seeds`: one run) its own
 summary_<...>_L.json, and `--sizes N ...` (in demonstrations) its own summary_<...>_sizesN.json.
-Each run works in `runs/fig2/<run id>/` (the run id names everything a run depends on). Run the same command again to resume: done runs are skipped,
-interrupted ones continue from their own checkpoints; rows this work folder did not produce (e.g. the
-committed ones of a clone) are run again, never counted as done.
+Each run works in `runs/fig2/<run id>/` (the run id names everything a run depends on). Run the
+same command again to resume: done runs are skipped, interrupted ones continue from their own
+checkpoints; rows this work folder did not produce (e.g. the committed ones of a clone) are run again,
+never counted as done.
 
 A sweep takes any `concurrent.futures.Executor` (a process pool by default; Dask's
 `Client.get_executor()`), so the function that performs one run, `run_fn(spec, run_dir, context)`, must
