@@ -144,7 +144,7 @@ def main(argv=None):
     if (args.scheduler or args.local_cluster) and distributed is None:
         f.error(f"{'--scheduler' if args.scheduler else '--local-cluster'} needs Dask: pip install \".[cluster]\"")
     try:
-        cfg, part, seeds = narrow(PROFILES[args.profile], args.seeds, args.lines, args.sizes)
+        cfg, part, words = narrow(PROFILES[args.profile], args.seeds, args.lines, args.sizes)
     except ValueError as e:
         f.error(str(e))
     if args.compare:                           # before the sweep: a compare folder to read afterwards
@@ -197,7 +197,7 @@ def main(argv=None):
         print('fig2.png not drawn: the plot needs matplotlib (pip install ".[plots]")')
     elif rows:
         plot(summary, os.path.join(out, f"fig2{part}.png"), _labels(cfg.methods),
-             title=f"Figure 2 ({cfg.name} profile, {seeds})")
+             title=f"Figure 2 ({cfg.name} profile, {words})")
         print(f"figure: {os.path.join(out, f'fig2{part}.png')}")
     if args.compare:
         return _compare(rows, args.compare)
