@@ -42,6 +42,10 @@ def main(argv=None):
                    help="act in the recorded scenes of the demonstrations (trial j adapts on demo j, acts in demo "
                         "(j + 1) mod min(demos, trials)'s scene), not in new ones: has the policy memorised its "
                         "meta-training scenes?")
+    p.add_argument("--other-colour-demo", action="store_true",
+                   help="the control for what the demonstration carries: condition each trial on a demonstration "
+                        "of ANOTHER colour (the split's farthest in hue), scored on its own target; a policy that reads the "
+                        "colour from the demonstration should now fail, one that knows the scene should not")
     p.add_argument("--unadapted", action="store_true",
                    help="also run the policy without adaptation, in the same scenes (does adapting help?)")
     p.add_argument("--raw", action="store_true",
@@ -99,12 +103,18 @@ def main(argv=None):
         fit_check.check_data(ckpt, dataset["metadata"], args.checkpoint, path, palette=not args.any_palette)
     if "train" in loaded:                    # the contrast: the colours and demos the run meta-trained on, no more
         loaded["train"] = run_data.subset(loaded["train"], cfg.tasks, cfg.demos)
+    few = [f"{split} ({len(d['task_colours'])})" for split, d in loaded.items() if len(d["task_colours"]) < 2]
+    if args.other_colour_demo and few:
+        p.error(f"--other-colour-demo needs 2 colours or more in every scored split; {', '.join(few)} has fewer"
+                + (": skip the contrast with --train ''" if any(f.startswith("train") for f in few) else ""))
     results = {}
     for split, dataset in loaded.items():
         condition = method.conditioner(params, seed=args.seed)
-        r = imitation.one_shot_success(condition, dataset, args.trials, args.seed, demo_scenes=args.demo_scenes)
+        r = imitation.one_shot_success(condition, dataset, args.trials, args.seed, demo_scenes=args.demo_scenes,
+                                       other_colour_demo=args.other_colour_demo)
         r["ci95"] = lo, hi = wilson_interval(r["successes"], r["trials"])
-        print(f"{split} colours: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
+        shown = ", each shown a demonstration of another colour" if args.other_colour_demo else ""
+        print(f"{split} colours{shown}: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
               f"95% CI [{lo:.3f}, {hi:.3f}]; failures: {r['failures']['near_miss']} near misses (closest "
               f"to the target, but not within reach), {r['failures']['wrong_object']} at a distractor")
         results[split] = r
@@ -127,11 +137,12 @@ def main(argv=None):
         written = {k: dict(v, per_colour={str(c): x for c, x in v["per_colour"].items()})
                    if "per_colour" in v else v for k, v in results.items()}
         # what `python -m oneshot.experiments seeds` pools: one recipe (the config but its seed and data
-        # paths, with this command's --alpha and --inner-steps, --raw and --demo-scenes), scored on one
-        # dataset and scenes
+        # paths, with this command's --alpha and --inner-steps, --raw, --demo-scenes and
+        # --other-colour-demo), scored on one dataset and scenes
         recipe = {k: v for k, v in dataclasses.asdict(cfg).items() if k != "seed" and not k.endswith("_data")}
         written["policy"] = {"checkpoint": args.checkpoint, "training_seed": cfg.seed, "method": cfg.method,
-                             "recipe": dict(recipe, raw=args.raw, **({"demo_scenes": True} if args.demo_scenes else {})),
+                             "recipe": dict(recipe, raw=args.raw, **{k: True for k in ("demo_scenes", "other_colour_demo")
+                                                                     if getattr(args, k)}),
                              "dataset": run_data.spec(cfg, args.split)[0], "trials_per_colour": args.trials,
                              "eval_seed": args.seed}
         with files.atomic_write(args.json) as f:             # never half a file

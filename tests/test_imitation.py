@@ -1,5 +1,7 @@
 """Section III on the real network: eq. (2), the batched meta-objective, and second-order MAML,
 against independent references (per-task loops and finite differences)."""
+import colorsys
+
 import numpy as np
 import pytest
 from autograd import grad
@@ -9,6 +11,7 @@ from oneshot import methods
 from oneshot.maml import batched, imitation, inner
 from oneshot.policy import network
 from oneshot.maml.inner import InnerLoop
+from oneshot.world import palette
 from oneshot.world.reach import ReachWorld, WorldConfig
 
 CFG = network.NetworkConfig(image_size=8, channels=(3, 4), hidden=(5, 5))
@@ -198,3 +201,18 @@ def test_rollout_lets_the_world_check_the_target_colour(colour, message):
 def test_methods_of_asks_for_a_config_not_a_name():
     with pytest.raises(ValueError, match=r"methods.of takes a TrainConfig, e.g. TrainConfig\(method='mil'\)"):
         methods.of("mil")
+
+
+def test_the_other_colour_demo_is_the_colour_farthest_in_hue():
+    # `evaluate --other-colour-demo` conditions each task's trials on the demos of the task whose hue is
+    # farthest from its own: checked against the hue distances computed here, in a shuffled order
+    cfg = palette.PaletteConfig(mode="grid")
+    colours = np.random.default_rng(0).permutation(palette.split_colours("test", cfg))
+    chosen = imitation.farthest_hue_tasks(colours, cfg)
+    hue = [colorsys.rgb_to_hsv(*(palette.palette_rgb(cfg)[c] / 255.0))[0] * 360 for c in colours]
+    apart = lambda a, b: min(abs(a - b), 360 - abs(a - b))
+    for i, j in enumerate(chosen):
+        assert j != i and apart(hue[i], hue[j]) == pytest.approx(max(apart(hue[i], h) for h in hue), abs=1.0)
+    assert len({apart(hue[i], hue[j]) > 90 for i, j in enumerate(chosen)}) == 1          # all far: above 90 deg
+    one_hue = [c for c in colours if palette.colour_hue(c, cfg) == palette.colour_hue(colours[0], cfg)]
+    assert len(one_hue) > 1 and all(j != i for i, j in enumerate(imitation.farthest_hue_tasks(one_hue, cfg)))

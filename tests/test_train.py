@@ -13,7 +13,7 @@ from oneshot.data import collection, datasets
 from oneshot.expert.controller import ExpertConfig
 from oneshot.maml import batched, imitation, inner, optim
 from oneshot.policy import network
-from oneshot.training import checkpoint, config, run_folder, scoring
+from oneshot.training import checkpoint, config, run_data, run_folder, scoring
 from oneshot import evaluate
 from oneshot.methods.mil import INNER_PARAMS, inner_loop
 from oneshot.training import loop
@@ -357,6 +357,43 @@ def test_evaluate_can_act_in_the_scenes_of_the_demonstrations(tiny, tmp_path, mo
     evaluate.main([ckpt, "--validation", tiny.validation_data, "--trials", "3", "--train", ""])
     recorded = {tuple(np.round(p, 6).ravel()) for p in heldout["positions"].reshape(-1, *heldout["positions"].shape[2:])}
     assert played and not {tuple(np.round(t["scene"].positions, 6).ravel()) for t in played} & recorded
+
+
+def test_evaluate_can_condition_on_a_demonstration_of_another_colour(tiny, tmp_path, monkeypatch, capsys):
+    # --other-colour-demo, the control for what the demonstration carries: trial j of colour i is
+    # conditioned on demo j of the other colour (of two) and still scored on colour i's target
+    run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
+    ckpt = str(tmp_path / "run" / "checkpoint.npz")
+    params = checkpoint.policy_params(checkpoint.load(ckpt), False)
+    heldout = datasets.load(tiny.validation_data)
+    n, k = heldout["images"].shape[:2]
+    assert n == 2
+    demos = imitation.prepare_demos(heldout["images"], heldout["states"], heldout["actions"],
+                                    WorldConfig().arm.max_torque)
+    played, rollout = [], imitation.rollout
+    monkeypatch.setattr(imitation, "rollout", lambda p, w, seed, colour: played.append(colour) or rollout(p, w, seed, colour))
+    for other in (False, True):
+        shown, played[:] = [], []
+        imitation.one_shot_success(lambda demo: shown.append(demo) or params, heldout, 2, progress=False,
+                                   other_colour_demo=other)
+        assert played == [int(heldout["task_colours"][i]) for i in range(n) for j in range(2)]   # scored on its own
+        for t, demo in enumerate(shown):
+            i, j = divmod(t, 2)
+            for got, want in zip(demo, demos):
+                np.testing.assert_array_equal(got, want[1 - i if other else i, j % k])
+    results = evaluate.main([ckpt, "--validation", tiny.validation_data, "--trials", "2", "--other-colour-demo",
+                             "--json", str(tmp_path / "e.json")])
+    assert results["validation"]["trials"] == 2 * n
+    with open(tmp_path / "e.json") as f:
+        assert json.load(f)["policy"]["recipe"]["other_colour_demo"] is True       # never pooled with the plain
+    with pytest.raises(ValueError, match="another colour needs 2 colours or more; the validation dataset has 1"):
+        imitation.one_shot_success(lambda demo: params, run_data.subset(heldout, 1, k), 2, other_colour_demo=True)
+    run_folder.train(dataclasses.replace(tiny, iterations=1, tasks=1), tmp_path / "one", progress=False)
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:            # its contrast, the 1 colour it trained on: refused up front
+        evaluate.main([str(tmp_path / "one" / "checkpoint.npz"), "--validation", tiny.validation_data,
+                       "--other-colour-demo"])
+    assert stop.value.code == 2 and "train (1) has fewer: skip the contrast with --train ''" in capsys.readouterr().err
 
 
 def test_evaluate_command_can_meta_test_with_another_step_size(tiny, tmp_path, capsys):

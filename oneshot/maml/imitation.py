@@ -19,6 +19,7 @@ from oneshot.data.datasets import world_config
 from oneshot.policy import inputs
 from oneshot.tools.checks import real_number, whole_number
 from oneshot.policy.network import STRIDE, forward, images_to_float
+from oneshot.world.palette import hue_distance_deg
 from oneshot.world.reach import ReachWorld, closest_object, is_success, observation_state
 
 # joint angles (rad), joint velocities (rad/s), end effector (m) -> order one
@@ -151,7 +152,17 @@ def _pair(a, b):
     return (a + b) * (a + b + 1) // 2 + b
 
 
-def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=True, demo_scenes=False):
+def farthest_hue_tasks(task_colours, palette_cfg):
+    """For each task, another task whose colour's hue is farthest from its own (the first such):
+    task_colours (n,) palette indices, n >= 2 -> (n,) task indices, never the task itself."""
+    colours = np.asarray(task_colours)
+    distance = hue_distance_deg(colours[:, None], colours[None, :], palette_cfg)
+    np.fill_diagonal(distance, -1.0)                      # another task, even if every hue is the same
+    return np.argmax(distance, axis=1)
+
+
+def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=True, demo_scenes=False,
+                     other_colour_demo=False):
     """Meta-test over a dataset (Section III-B, scored as in Section IV): for each task (colour) of
     `dataset`, `trials_per_colour` trials; trial j conditions the policy on demo j % K of that task
     and runs it in a fresh scene of that colour (`trial_seed`).
@@ -159,6 +170,12 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
     demo_scenes: run trial j instead in the recorded scene of the task's demo (j + 1) % k, k = min(K,
     trials_per_colour): another of the demos the trials adapt on (the same positions and colours). On meta-training data this asks whether a
     policy has learnt the task or memorised its training scenes (docs/results.md, section 10).
+
+    other_colour_demo: condition trial j of task i on demo j of the task whose hue is farthest from
+    task i's (`farthest_hue_tasks`), and still score it on task i's target: the control for what the
+    demonstration carries. A policy that reads the colour from the demonstration should now fail (it
+    looks for a disc of another colour: it reaches the target about as often as it would by picking a
+    disc at random); one that knows the scene without the demonstration should not.
 
     condition(demo) -> policy: what one demonstration (network units) makes of the policy, e.g.
     `lambda demo: adapt(params, demo, alpha, steps, only=only)` for MIL (eq. 1), `lambda demo: params` for
@@ -173,6 +190,11 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
     world_cfg = world_config(meta)
     world = ReachWorld(world_cfg)
     n, k = dataset["images"].shape[:2]
+    if other_colour_demo and n < 2:
+        raise ValueError(f"a demonstration of another colour needs 2 colours or more; the {meta['split']} "
+                         f"dataset has {n}")
+    shown = (farthest_hue_tasks(dataset["task_colours"], world_cfg.palette) if other_colour_demo else
+             np.arange(n))                                # the task whose demos condition each task's trials
     if demo_scenes and not 2 <= trials_per_colour <= k:   # else a trial replays another, or its own demo's scene
         raise ValueError(f"demo scenes need 2 <= trials per colour <= the {k} demos per colour of the "
                          f"{meta['split']} dataset; got {trials_per_colour}")
@@ -189,7 +211,7 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
             for i in range(n):
                 colour, won = int(dataset["task_colours"][i]), 0
                 for j in range(trials_per_colour):
-                    policy = condition(tuple(a[i, j % k] for a in demos))
+                    policy = condition(tuple(a[shown[i], j % k] for a in demos))
                     trial = rollout(policy, world, scene_seed(i, j), colour)
                     won += trial["success"]
                     if not trial["success"]:
