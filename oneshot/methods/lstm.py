@@ -14,7 +14,7 @@ import numpy as np
 from oneshot.maml import batched
 from oneshot.methods.base import Method
 from oneshot.policy import inputs, network
-from oneshot.policy.layers import add_bias, concat_last, matmul
+from oneshot.policy.layers import add_bias, concat_last, matmul, tanh
 from oneshot.policy.network import head, init_params, trunk
 
 
@@ -56,12 +56,12 @@ def lstm_step(w_h, xw, h, c):
     units = h.shape[-1]
     z = matmul(h, w_h) + xw                                                          # (B, 4 units)
     i, f, g, o = (z[..., k * units:(k + 1) * units] for k in range(4))
-    c = _sigmoid(f) * c + _sigmoid(i) * anp.tanh(g)
-    return _sigmoid(o) * anp.tanh(c), c
+    c = _sigmoid(f) * c + _sigmoid(i) * tanh(g)
+    return _sigmoid(o) * tanh(c), c
 
 
 def _sigmoid(x):
-    return 0.5 * (anp.tanh(0.5 * x) + 1.0)        # = 1 / (1 + exp(-x)), without overflow
+    return 0.5 * (tanh(0.5 * x) + 1.0)            # = 1 / (1 + exp(-x)), without overflow
 
 
 def lstm_summary(params, demo):

@@ -5,7 +5,7 @@ builds the policy from, in one place.
                              layer's convolution, transpose and weight gradient (conv, conv_dx, conv_dw)
     oneshot.policy.affine    the dense layers' matrix products and bias adds, with their transposes
     oneshot.policy.norm      layer normalisation (the released code's, offset only)
-    here                     ReLU, concatenation, the spatial soft-argmax (feature points)
+    here                     ReLU, tanh, concatenation, the spatial soft-argmax (feature points)
 
 Each is an autograd primitive whose vector-Jacobian product (VJP) is written with primitives of the
 same family, so derivatives of every order work (MAML's second-order meta-gradient differentiates the
@@ -28,7 +28,7 @@ from oneshot.policy.norm import LN_EPSILON, layer_norm
 
 __all__ = ["add_bias", "bias_grad", "broadcast_bias", "matmul", "matmul_dw", "matmul_dx",          # affine
            "col2im", "conv", "conv2d", "conv_dw", "conv_dx", "conv_output_size", "im2col",          # conv
-           "relu", "mask", "concat_last", "slice_last", "pad_last", "spatial_soft_argmax", "per_frame",
+           "relu", "mask", "tanh", "tanh_dx", "concat_last", "slice_last", "pad_last", "spatial_soft_argmax", "per_frame",
            "layer_norm", "LN_EPSILON"]                                                              # norm
 
 
@@ -48,6 +48,27 @@ def mask(g, m):
 
 defvjp(relu, lambda ans, x: lambda g: mask(g, getval(ans) > 0))
 defvjp(mask, lambda ans, g, m: lambda u: mask(u, m))
+
+
+@primitive
+def tanh(x):
+    """tanh (the LSTM baseline's gates and cell). Its VJP is autograd's own, g / cosh(x)^2, to the bit,
+    but `tanh_dx` computes it without NumPy's overflow warning: where |x| > 44, cosh(x)^2 overflows
+    float32 and g / inf = 0 is the derivative's right limit, so the warning said nothing."""
+    return np.tanh(x)
+
+
+@primitive
+def tanh_dx(g, x):
+    """g / cosh(x)^2, the VJP of `tanh` at x for the cotangent g, silent where cosh(x)^2 overflows."""
+    with np.errstate(over="ignore"):
+        return g / np.cosh(x) ** 2
+
+
+defvjp(tanh, lambda ans, x: lambda g: tanh_dx(g, x))
+defvjp(tanh_dx,                                      # d/dx g sech^2(x) = -2 g sech^2(x) tanh(x)
+       lambda ans, g, x: lambda h: tanh_dx(h, x),
+       lambda ans, g, x: lambda h: -2 * tanh_dx(h * g, x) * tanh(x))
 
 
 @primitive
