@@ -23,6 +23,7 @@ from oneshot.training import checkpoint, fit_check, run_data
 from oneshot.training.scoring import adaptation_gain, colour_breakdown, wilson_interval
 
 FLAGS = {"train": "--train", "validation": "--validation", "test": "--test"}
+FLAGGED = ("demo_scenes", "other_colour_demo")      # options recorded in the recipe when set: never pooled with plain
 
 
 def main(argv=None):
@@ -44,8 +45,8 @@ def main(argv=None):
                         "meta-training scenes?")
     p.add_argument("--other-colour-demo", action="store_true",
                    help="the control for what the demonstration carries: condition each trial on a demonstration "
-                        "of ANOTHER colour (the split's farthest in hue), scored on its own target; a policy that reads the "
-                        "colour from the demonstration should now fail, one that knows the scene should not")
+                        "of ANOTHER colour (the split's farthest in hue), scored on its own target; a policy that "
+                        "reads the colour from the demonstration should now fail, one that knows the scene should not")
     p.add_argument("--unadapted", action="store_true",
                    help="also run the policy without adaptation, in the same scenes (does adapting help?)")
     p.add_argument("--raw", action="store_true",
@@ -103,10 +104,11 @@ def main(argv=None):
         fit_check.check_data(ckpt, dataset["metadata"], args.checkpoint, path, palette=not args.any_palette)
     if "train" in loaded:                    # the contrast: the colours and demos the run meta-trained on, no more
         loaded["train"] = run_data.subset(loaded["train"], cfg.tasks, cfg.demos)
-    few = [f"{split} ({len(d['task_colours'])})" for split, d in loaded.items() if len(d["task_colours"]) < 2]
+    few = {split: len(d["task_colours"]) for split, d in loaded.items() if len(d["task_colours"]) < 2}
     if args.other_colour_demo and few:
-        p.error(f"--other-colour-demo needs 2 colours or more in every scored split; {', '.join(few)} has fewer"
-                + (": skip the contrast with --train ''" if any(f.startswith("train") for f in few) else ""))
+        p.error(f"--other-colour-demo needs 2 colours or more in every scored split; "
+                + ", ".join(f"the {split} split has {n}" for split, n in few.items())
+                + (": skip the contrast with --train ''" if "train" in few else ""))
     results = {}
     for split, dataset in loaded.items():
         condition = method.conditioner(params, seed=args.seed)
@@ -130,8 +132,9 @@ def main(argv=None):
         print(f"{split} colours, by colour: {colour_breakdown(r, args.trials, dataset['metadata'])}")
         if method.adapts:
             g = adaptation_gain(params, dataset, method.conditioner(params))
+            own = " of its own colour" if args.other_colour_demo else ""
             print(f"{split} colours: eq. (2) loss on a second demo {g['before']:.3f} before adapting on "
-                  f"one demo, {g['after']:.3f} after ({g['pairs']} pairs)")
+                  f"one demo{own}, {g['after']:.3f} after ({g['pairs']} pairs)")
             results["adaptation_gain"] = g
     if args.json:
         written = {k: dict(v, per_colour={str(c): x for c, x in v["per_colour"].items()})
@@ -141,8 +144,7 @@ def main(argv=None):
         # --other-colour-demo), scored on one dataset and scenes
         recipe = {k: v for k, v in dataclasses.asdict(cfg).items() if k != "seed" and not k.endswith("_data")}
         written["policy"] = {"checkpoint": args.checkpoint, "training_seed": cfg.seed, "method": cfg.method,
-                             "recipe": dict(recipe, raw=args.raw, **{k: True for k in ("demo_scenes", "other_colour_demo")
-                                                                     if getattr(args, k)}),
+                             "recipe": dict(recipe, raw=args.raw, **{k: True for k in FLAGGED if getattr(args, k)}),
                              "dataset": run_data.spec(cfg, args.split)[0], "trials_per_colour": args.trials,
                              "eval_seed": args.seed}
         with files.atomic_write(args.json) as f:             # never half a file

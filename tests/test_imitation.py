@@ -213,6 +213,9 @@ def test_the_other_colour_demo_is_the_colour_farthest_in_hue():
     apart = lambda a, b: min(abs(a - b), 360 - abs(a - b))
     for i, j in enumerate(chosen):
         assert j != i and apart(hue[i], hue[j]) == pytest.approx(max(apart(hue[i], h) for h in hue), abs=1.0)
-    assert len({apart(hue[i], hue[j]) > 90 for i, j in enumerate(chosen)}) == 1          # all far: above 90 deg
+    assert all(apart(hue[i], hue[j]) > 90 for i, j in enumerate(chosen))                 # all far: above 90 deg
+    assert len(set(chosen.tolist())) > len(colours) // 2       # ties broken across the opposite hue's colours
     one_hue = [c for c in colours if palette.colour_hue(c, cfg) == palette.colour_hue(colours[0], cfg)]
     assert len(one_hue) > 1 and all(j != i for i, j in enumerate(imitation.farthest_hue_tasks(one_hue, cfg)))
+    with pytest.raises(ValueError, match="another task needs 2 tasks or more; got 1"):
+        imitation.farthest_hue_tasks(colours[:1], cfg)

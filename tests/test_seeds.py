@@ -85,6 +85,7 @@ def test_seeds_interval_is_the_seed_and_colour_bootstrap_of_the_counts(tmp_path,
     (dict(eval_seed=1), "differ in eval_seed"),
     (dict(method="lstm"), "differ in method"),
     (dict(recipe=dict(RECIPE, alpha=0.1)), "differ in recipe"),
+    (dict(recipe=dict(RECIPE, other_colour_demo=True)), "b.json: other_colour_demo=True"),   # names what differs
     (dict(dataset="data/other.npz"), "differ in dataset"),
 ])
 def test_seeds_refuses_results_that_do_not_pool(tmp_path, capsys, second, why):

@@ -361,7 +361,8 @@ def test_evaluate_can_act_in_the_scenes_of_the_demonstrations(tiny, tmp_path, mo
 
 def test_evaluate_can_condition_on_a_demonstration_of_another_colour(tiny, tmp_path, monkeypatch, capsys):
     # --other-colour-demo, the control for what the demonstration carries: trial j of colour i is
-    # conditioned on demo j of the other colour (of two) and still scored on colour i's target
+    # conditioned on demo j of the other colour (of two) and still scored on colour i's target (which
+    # other colour, the farthest in hue, is test_imitation.py's)
     run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
     ckpt = str(tmp_path / "run" / "checkpoint.npz")
     params = checkpoint.policy_params(checkpoint.load(ckpt), False)
@@ -371,7 +372,8 @@ def test_evaluate_can_condition_on_a_demonstration_of_another_colour(tiny, tmp_p
     demos = imitation.prepare_demos(heldout["images"], heldout["states"], heldout["actions"],
                                     WorldConfig().arm.max_torque)
     played, rollout = [], imitation.rollout
-    monkeypatch.setattr(imitation, "rollout", lambda p, w, seed, colour: played.append(colour) or rollout(p, w, seed, colour))
+    monkeypatch.setattr(imitation, "rollout",
+                        lambda p, w, seed, colour: played.append(colour) or rollout(p, w, seed, colour))
     for other in (False, True):
         shown, played[:] = [], []
         imitation.one_shot_success(lambda demo: shown.append(demo) or params, heldout, 2, progress=False,
@@ -393,7 +395,7 @@ def test_evaluate_can_condition_on_a_demonstration_of_another_colour(tiny, tmp_p
     with pytest.raises(SystemExit) as stop:            # its contrast, the 1 colour it trained on: refused up front
         evaluate.main([str(tmp_path / "one" / "checkpoint.npz"), "--validation", tiny.validation_data,
                        "--other-colour-demo"])
-    assert stop.value.code == 2 and "train (1) has fewer: skip the contrast with --train ''" in capsys.readouterr().err
+    assert stop.value.code == 2 and "the train split has 1: skip the contrast with --train ''" in capsys.readouterr().err
 
 
 def test_evaluate_command_can_meta_test_with_another_step_size(tiny, tmp_path, capsys):

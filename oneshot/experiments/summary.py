@@ -152,6 +152,17 @@ def read_evaluations(paths):
     return results
 
 
+def _differing(rows, key):
+    """What differs in `key` between the rows, for a message: the recipe's entries that differ (the
+    recipe is long, and its first entries are the same), or each file's value."""
+    if key == "recipe":
+        recipes = [json.loads(row[key]) for row in rows]
+        names = sorted(k for k in set().union(*recipes) if len({json.dumps(r.get(k)) for r in recipes}) > 1)
+        return "; ".join(f"{row['file']}: " + ", ".join(f"{k}={r.get(k)!r}" for k in names)
+                         for row, r in zip(rows, recipes))
+    return "; ".join(f"{row['file']}: {str(row[key])[:80]}" for row in rows)
+
+
 def pool_evaluations(results, names):
     """The mean over training seeds of one recipe's policies, each scored by `python -m oneshot.evaluate
     CKPT --split S --json FILE` on the same split, colours and scenes, with its 95% interval over seeds
@@ -161,7 +172,8 @@ def pool_evaluations(results, names):
     results: the JSON of each file (at least two); names: the files, for messages. ValueError if a file
     is not evaluate's, or its counts disagree with its totals, or the results do not pool: another split,
     dataset, colours, trials, trial scenes, method or recipe (the training config but its seed and data
-    paths, evaluate's --raw, --alpha and --inner-steps), or a training seed twice.
+    paths, evaluate's --raw, --alpha, --inner-steps, --demo-scenes and --other-colour-demo), or a training
+    seed twice.
     -> {"split", "dataset", "colours", "trials_per_colour", "eval_seed", "method", "policies": [{"file",
     "checkpoint", "training_seed", "successes", "trials", "rate"}], "successes", "trials", "mean_rate",
     "ci_low", "ci_high", "min_rate", "max_rate", "interval": stats.METHOD}.
@@ -173,9 +185,10 @@ def pool_evaluations(results, names):
     for key in POOLED:
         values = {str(row[key]) for row in rows}
         if len(values) > 1:
-            which = "; ".join(f"{row['file']}: {str(row[key])[:80]}" for row in rows)
-            raise ValueError(f"these results differ in {key} ({which}): pool one recipe's policies scored on the "
-                             f"same split, colours and scenes (evaluate's --split, --trials and --seed)")
+            raise ValueError(f"these results differ in {key} ({_differing(rows, key)}): pool one recipe's policies "
+                             f"scored on the same split, colours and scenes (evaluate's --split, --trials and --seed; "
+                             f"the recipe: the training config, --alpha, --inner-steps, --raw, --demo-scenes and "
+                             f"--other-colour-demo)")
     by_seed = {}
     for row in rows:
         by_seed.setdefault(row["training_seed"], []).append(row["file"])

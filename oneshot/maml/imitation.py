@@ -153,12 +153,19 @@ def _pair(a, b):
 
 
 def farthest_hue_tasks(task_colours, palette_cfg):
-    """For each task, another task whose colour's hue is farthest from its own (the first such):
-    task_colours (n,) palette indices, n >= 2 -> (n,) task indices, never the task itself."""
+    """For each task, another task whose colour's hue is farthest from its own: task_colours (n,)
+    palette indices, n >= 2 -> (n,) task indices, never the task itself. Of tasks equally far (in the
+    grid palette every colour of the opposite hue), the first after it in the tasks' cyclic order, so
+    that the tasks of one hue are shown different colours' demonstrations."""
     colours = np.asarray(task_colours)
+    n = len(colours)
+    if n < 2:
+        raise ValueError(f"another task needs 2 tasks or more; got {n}")
     distance = hue_distance_deg(colours[:, None], colours[None, :], palette_cfg)
     np.fill_diagonal(distance, -1.0)                      # another task, even if every hue is the same
-    return np.argmax(distance, axis=1)
+    after = (np.arange(n)[None, :] - np.arange(n)[:, None]) % n          # how far task j comes after task i
+    farthest = distance == distance.max(axis=1, keepdims=True)
+    return np.argmin(np.where(farthest, after, n), axis=1)
 
 
 def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=True, demo_scenes=False,

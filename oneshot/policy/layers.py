@@ -28,8 +28,8 @@ from oneshot.policy.norm import LN_EPSILON, layer_norm
 
 __all__ = ["add_bias", "bias_grad", "broadcast_bias", "matmul", "matmul_dw", "matmul_dx",          # affine
            "col2im", "conv", "conv2d", "conv_dw", "conv_dx", "conv_output_size", "im2col",          # conv
-           "relu", "mask", "tanh", "tanh_dx", "concat_last", "slice_last", "pad_last", "spatial_soft_argmax", "per_frame",
-           "layer_norm", "LN_EPSILON"]                                                              # norm
+           "relu", "mask", "tanh", "tanh_dx", "concat_last", "slice_last", "pad_last", "spatial_soft_argmax",
+           "per_frame", "layer_norm", "LN_EPSILON"]                                                              # norm
 
 
 @primitive
@@ -52,15 +52,17 @@ defvjp(mask, lambda ans, g, m: lambda u: mask(u, m))
 
 @primitive
 def tanh(x):
-    """tanh (the LSTM baseline's gates and cell). Its VJP is autograd's own, g / cosh(x)^2, to the bit,
-    but `tanh_dx` computes it without NumPy's overflow warning: where |x| > 44, cosh(x)^2 overflows
-    float32 and g / inf = 0 is the derivative's right limit, so the warning said nothing."""
+    """tanh of any array, same shape and dtype (the LSTM baseline's gates and cell). Its VJP is
+    autograd's own, g / cosh(x)^2, to the bit, but `tanh_dx` computes it without NumPy's overflow
+    warning: where |x| > 45.05, cosh(x)^2 overflows float32 and g / inf = 0 is the derivative's right
+    limit, so the warning said nothing."""
     return np.tanh(x)
 
 
 @primitive
 def tanh_dx(g, x):
-    """g / cosh(x)^2, the VJP of `tanh` at x for the cotangent g, silent where cosh(x)^2 overflows."""
+    """g / cosh(x)^2, the VJP of `tanh` at x for the cotangent g (both the same shape; the result too),
+    silent where cosh(x)^2 overflows."""
     with np.errstate(over="ignore"):
         return g / np.cosh(x) ** 2
 
