@@ -204,7 +204,8 @@ def with_results(results):
 EXPERIMENT_VALUES = """{
     "results": RESULTS, "profile": PROFILE, "methods": ORDER, "sizes": SIZES, "rows": len(rows),
     "adaptation": adaptation, "inner_loops": [[size, a["successes"], b["successes"]] for size, a, b in inner_loops],
-    "per_colour": per_colour, "search_table": search_table, "ablation_table": ablation_table, "scenes_table": scenes_table, "live": live,
+    "per_colour": per_colour, "search_table": search_table, "ablation_table": ablation_table, "scenes_table": scenes_table,
+    "control_table": control_table, "live": live,
     "ITERATIONS": ITERATIONS,
     "plt_is_none": plt is None}"""
 
@@ -270,6 +271,15 @@ def test_experiments(fig2_results, tmp_path):
         expected.append([name, demo["train"]["successes"], new["train"]["successes"],
                          demo["validation"]["successes"], new["validation"]["successes"]])
     assert list(map(list, v["scenes_table"])) == sorted(expected)
+    # ... and the other-colour control: each policy's own-colour and farthest-hue counts, as its files hold them
+    controls = fig2_results / "fig2_paper" / "scenes"
+    expected = []
+    for other_file in sorted(controls.glob("*_demo_scenes_other_colour.json")):
+        name = other_file.name[:-len("_demo_scenes_other_colour.json")]
+        own, other = json.loads((controls / f"{name}_demo_scenes.json").read_text()), json.loads(other_file.read_text())
+        assert other["policy"]["recipe"].get("other_colour_demo") and not own["policy"]["recipe"].get("other_colour_demo")
+        expected.append([name, own["train"]["successes"], other["train"]["successes"], own["train"]["trials"]])
+    assert list(map(list, v["control_table"])) == expected and (len(expected) > 0) == controls.exists()
     # Section 7: every method of the figure ran; the trained ones' losses are finite and the fixed probe
     # meta-batch's loss fell; one trial per held-out colour (2).
     assert list(v["live"]) == list(lines.FIGURE)
