@@ -388,7 +388,7 @@ def test_evaluate_can_condition_on_a_demonstration_of_another_colour(tiny, tmp_p
     assert results["validation"]["trials"] == 2 * n
     with open(tmp_path / "e.json") as f:
         assert json.load(f)["policy"]["recipe"]["other_colour_demo"] is True       # never pooled with the plain
-    with pytest.raises(ValueError, match="another colour needs 2 colours or more; the validation dataset has 1"):
+    with pytest.raises(ValueError, match="another task needs 2 tasks or more; got 1"):
         imitation.one_shot_success(lambda demo: params, run_data.subset(heldout, 1, k), 2, other_colour_demo=True)
     run_folder.train(dataclasses.replace(tiny, iterations=1, tasks=1), tmp_path / "one", progress=False)
     capsys.readouterr()

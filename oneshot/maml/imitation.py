@@ -197,9 +197,6 @@ def one_shot_success(condition, dataset, trials_per_colour=10, seed=0, progress=
     world_cfg = world_config(meta)
     world = ReachWorld(world_cfg)
     n, k = dataset["images"].shape[:2]
-    if other_colour_demo and n < 2:
-        raise ValueError(f"a demonstration of another colour needs 2 colours or more; the {meta['split']} "
-                         f"dataset has {n}")
     shown = (farthest_hue_tasks(dataset["task_colours"], world_cfg.palette) if other_colour_demo else
              np.arange(n))                                # the task whose demos condition each task's trials
     if demo_scenes and not 2 <= trials_per_colour <= k:   # else a trial replays another, or its own demo's scene

@@ -29,7 +29,8 @@ from oneshot.policy.norm import LN_EPSILON, layer_norm
 __all__ = ["add_bias", "bias_grad", "broadcast_bias", "matmul", "matmul_dw", "matmul_dx",          # affine
            "col2im", "conv", "conv2d", "conv_dw", "conv_dx", "conv_output_size", "im2col",          # conv
            "relu", "mask", "tanh", "tanh_dx", "concat_last", "slice_last", "pad_last", "spatial_soft_argmax",
-           "per_frame", "layer_norm", "LN_EPSILON"]                                                              # norm
+           "per_frame",                                                                             # here
+           "layer_norm", "LN_EPSILON"]                                                              # norm
 
 
 @primitive
