@@ -32,7 +32,8 @@ def main(argv=None):
                    help="seed; the same seed gives the same dataset")
     p.add_argument("--workers", type=cli.positive_int, default=None,
                    help="processes (default and at most: the cores, and the demos)")
-    p.add_argument("--image-size", type=cli.at_least(8), default=32, help="image side in pixels (32 or 64)")
+    p.add_argument("--image-size", type=cli.at_least(8), default=32,
+                   help="image side in pixels (default 32, the shipped policies' size)")
     p.add_argument("--palette", choices=palette.MODES, default="hues",
                    help="the colours: 'hues' (default: 36 meta-training, 12 validation, 24 test) or 'grid' (324, 108, 48; "
                         "oneshot.world.palette)")
@@ -49,6 +50,10 @@ def main(argv=None):
         task_colours(args.tasks, args.split, args.seed, world_cfg.palette)
     except ValueError as e:
         p.error(f"argument --tasks: {e}")
+    try:
+        cli.replaces_only(args.out, datasets.is_dataset, "--out", "a dataset of demonstrations")
+    except ValueError as e:
+        p.error(str(e))
     try:
         cli.check_memory(cli.dataset_bytes(args.tasks, args.demos, args.horizon, args.image_size, world_cfg.n_objects),
                          f"{args.tasks} tasks x {args.demos} demos x {args.horizon} steps of "

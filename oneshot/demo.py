@@ -153,10 +153,11 @@ def main(argv=None):
     colours = palette.split_colours(SPLIT, world.config.palette)
     print(f"1. The iLQG expert records ONE demonstration for each of the {len(colours)} {SPLIT} colours")
     demos = {}
-    for i, colour in enumerate(tqdm(colours, desc="demonstrations", unit="demo", leave=False)):
-        d = controller.demonstrate(world, seed=args.seed * 1000 + i, options={"target_colour": int(colour)},
-                               cfg=expert_cfg)
-        demos[int(colour)] = d
+    with tqdm(colours, desc="demonstrations", unit="demo", leave=False) as bar:   # closed, so wiped, on Ctrl-C
+        for i, colour in enumerate(bar):
+            d = controller.demonstrate(world, seed=args.seed * 1000 + i, options={"target_colour": int(colour)},
+                                       cfg=expert_cfg)
+            demos[int(colour)] = d
     print(f"   expert success: {sum(d['success'] for d in demos.values())}/{len(demos)}")
 
     if ckpt is None:
@@ -177,18 +178,17 @@ def main(argv=None):
     print(f"3. Run it in {args.trials} new scenes per colour (new positions, new distractors)")
     wins = base_wins = 0
     trials = {}                                            # (colour's position i, trial j) -> (adapted, unadapted)
-    bar = tqdm(total=len(demos) * args.trials, desc="trials", unit="trial", leave=False)
-    for i, (colour, d) in enumerate(demos.items()):
-        demo = imitation.prepare_demos(d["images"], d["states"], d["actions"], max_torque)
-        adapted = method.conditioner(params)(demo)
-        for j in range(args.trials):
-            seed = imitation.trial_seed(args.seed, i, j, SPLIT)     # trial scenes, seeded as evaluate's
-            trials[i, j] = (imitation.rollout(adapted, world, seed, colour),
-                            imitation.rollout(method.unadapted(params)(demo), world, seed, colour))   # unadapted
-            wins += trials[i, j][0]["success"]
-            base_wins += trials[i, j][1]["success"]
-            bar.update(1)
-    bar.close()
+    with tqdm(total=len(demos) * args.trials, desc="trials", unit="trial", leave=False) as bar:
+        for i, (colour, d) in enumerate(demos.items()):
+            demo = imitation.prepare_demos(d["images"], d["states"], d["actions"], max_torque)
+            adapted = method.conditioner(params)(demo)
+            for j in range(args.trials):
+                seed = imitation.trial_seed(args.seed, i, j, SPLIT)     # trial scenes, seeded as evaluate's
+                trials[i, j] = (imitation.rollout(adapted, world, seed, colour),
+                                imitation.rollout(method.unadapted(params)(demo), world, seed, colour))  # unadapted
+                wins += trials[i, j][0]["success"]
+                base_wins += trials[i, j][1]["success"]
+                bar.update(1)
     n = len(demos) * args.trials
     lo, hi = wilson_interval(wins, n)
     print(f"\none-shot success on {SPLIT} colours: {wins}/{n} = {wins / n:.2f} (95% CI {lo:.2f}-{hi:.2f})")

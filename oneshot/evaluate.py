@@ -94,7 +94,8 @@ def main(argv=None):
     # Every dataset is found and checked before the first trial; one message names all that are missing.
     gone = run_data.missing(cfg, splits, FLAGS)
     if gone:
-        raise FileNotFoundError(gone + ("" if "train" not in splits else ", or skip the contrast with --train ''"))
+        train_gone = "train" in splits and run_data.missing(cfg, ["train"]) is not None
+        raise FileNotFoundError(gone + (", or skip the contrast with --train ''" if train_gone else ""))
     loaded = {split: datasets.load(run_data.spec(cfg, split)[0]) for split in splits}
     for split, dataset in loaded.items():    # its split; images, horizon, state, torques (and palette) as trained on
         path = run_data.spec(cfg, split)[0]

@@ -287,6 +287,22 @@ def test_cli_writes_summary_and_says_when_the_plot_needs_matplotlib(tmp_path, mo
     assert not (tmp_path / "out" / "fig2.png").exists()
 
 
+@pytest.mark.parametrize("held", ["runs", "summary"])
+def test_cli_refuses_a_results_folder_of_another_profile(tmp_path, capsys, tiny_argv, held):
+    """The committed quick profile's folder as --out of the tiny profile: refused before any work, every
+    file as it was (its summary and figure would be replaced, and `summarise` would pool both)."""
+    out = tmp_path / "out"
+    shutil.copytree(os.path.join(os.path.dirname(__file__), "..", "results", "fig2_quick"), out)
+    (out / ("summary.json" if held == "runs" else "runs.csv")).unlink()
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    with pytest.raises(SystemExit) as e:
+        command.main(tiny_argv)
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and f"{out} holds another sweep's results" in err, err
+    assert ("runs that are not the tiny profile's" if held == "runs" else "a summary of the quick profile") in err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before and not (tmp_path / "w").exists()
+
+
 def test_cli_writes_no_summary_until_every_run_finished(tmp_path, monkeypatch, capsys, tiny_argv):
     """Notebook 04 shows a profile's summary.json as its figure: it is written only for the whole sweep."""
     monkeypatch.setattr(command, "PLOTS", False)
@@ -604,10 +620,17 @@ def test_a_finished_run_ships_as_a_policy_that_scores_what_its_row_says(tmp_path
     spec = max((r for r in plan(TINY) if r.method == "mil-conv0" and r.seed == 0), key=lambda r: r.size)
     row = sweeping.execute(fig2.run_one, spec, os.path.abspath(os.path.join("w", spec.run_id)), run_context(TINY, "d"))
     own = os.path.join("w", spec.run_id, "checkpoint.npz")
-    before = open(own, "rb").read()
-    with pytest.raises(SystemExit) as e:                     # --out onto the run's own checkpoint: refused
-        cli.run(command.main, [*ship[:-1], own])
-    assert e.value.code == 2 and "would overwrite" in capsys.readouterr().err and open(own, "rb").read() == before
+    other = os.path.join("w", "mil-all_c3_d4_s0_i2", "checkpoint.npz")      # another run's, as trained
+    os.makedirs(os.path.dirname(other))
+    shutil.copyfile(own, other)
+    dataset = fig2.data_paths(TINY, "d")["train"]
+    # --out onto any run's checkpoint in --work, or onto a dataset: refused, each file left as it was
+    for path, message in ((own, "would write into w, the sweep's work folder"), (other, "would write into w"),
+                          (dataset, "exists and is not a policy (a checkpoint)")):
+        before = open(path, "rb").read()
+        with pytest.raises(SystemExit) as e:
+            cli.run(command.main, [*ship[:-1], path])
+        assert e.value.code == 2 and message in capsys.readouterr().err and open(path, "rb").read() == before
     assert command.main(ship) == 0
     run, shipped = checkpoint.load(os.path.join("w", spec.run_id, "checkpoint.npz")), checkpoint.load("policy.npz")
     assert all(np.array_equal(run["params"][k], shipped["params"][k]) for k in run["params"])

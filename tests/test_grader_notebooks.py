@@ -95,6 +95,24 @@ def test_an_assignment_grades_only_its_exercises(tmp_path, capsys):
     assert cli_main.parser().parse_args(["grade", "x"]).timeout == 10.0        # an endless loop costs 10 s
 
 
+def test_a_submission_the_grader_will_not_follow_or_read_is_named_not_dropped(tmp_path, capsys):
+    """A link to a file, or a FIFO, named like a submission: not graded (a link could point anywhere),
+    and the teacher is told which and why, on stderr; the real file beside them is graded."""
+    folder, elsewhere = tmp_path / "class", tmp_path / "elsewhere.py"
+    folder.mkdir()
+    elsewhere.write_text(reference_source(1))
+    (folder / "gina.py").write_text(reference_source(1))
+    (folder / "henry.py").symlink_to(elsewhere)
+    os.mkfifo(folder / "ivan.py")
+    (folder / "notes.txt").write_text("not a submission, and not named like one")
+    assert cli_main.main(["grade", str(folder), "--exercises", "1"]) == 0
+    out, err = capsys.readouterr()
+    assert [line.split()[0] for line in out.splitlines()] == ["gina.py", "gina.py"]
+    assert [line.split()[1] for line in err.splitlines() if line.startswith("warning: ")][-2:] == ["henry.py", "ivan.py"]
+    assert "henry.py is not graded: it is a symbolic link" in err and "ivan.py is not graded: it is not a regular" in err
+    assert "notes.txt" not in err
+
+
 def test_check_file_on_a_notebook(handed_in, capsys):
     assert cli_main.main(["check", "9", "--file", str(handed_in / "alice.ipynb")]) == 0
     assert capsys.readouterr().out == "exercise 9 (Sec. IV, the Wilson interval): correct\n"

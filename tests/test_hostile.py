@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -209,6 +210,15 @@ def test_evaluate_finds_a_missing_training_set_before_the_held_out_trials(capsys
     assert out == ""                                              # no held-out trial was run
 
 
+def test_evaluate_offers_to_skip_the_training_contrast_only_when_its_dataset_is_missing(capsys, tmp_path, tiny_checkpoint):
+    train_path = tmp_path / "train.npz"
+    datasets.save(collection.collect(2, 2, "train", 1, 1, WorldConfig(image_size=8, horizon=10), progress=False),
+                  train_path)
+    line, _ = refused(capsys, evaluate.main, [tiny_checkpoint, "--validation", str(tmp_path / "v.npz"),
+                                              "--train", str(train_path)])
+    assert "(validation, --validation)" in line and "--train ''" not in line and "(train" not in line
+
+
 def test_evaluate_names_every_missing_dataset_in_one_message_with_the_commands(capsys, tmp_path, tiny_checkpoint):
     """One round trip: the scored split's dataset and the training contrast's, both missing, both named,
     and the commands that make them (a checkpoint's own paths and demo counts, not the default profile's)."""
@@ -390,6 +400,19 @@ def test_divergence_names_the_checkpoint_only_if_there_is_one(tmp_path, tiny_cfg
         run_folder.train(tiny_cfg, tmp_path / "run2", resume=True, progress=False)
 
 
+@pytest.mark.parametrize("shards", [1, 2])
+def test_a_diverging_run_says_so_without_numpy_warnings(capfd, tmp_path, tiny_cfg, shards):
+    """The meta-loss overflows at a step size of 1e30: the error says so; numpy's overflow warnings, from
+    this process or a shard's, would only add noise before it."""
+    cfg = dataclasses.replace(tiny_cfg, lr=1e30, shards=shards)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(run_folder.TrainingDiverged, match="the meta-loss became nan"):
+            run_folder.train(cfg, tmp_path / "run", progress=False)
+    assert not [w for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert "Warning" not in capfd.readouterr().err
+
+
 def test_a_bare_resume_keeps_the_runs_own_length_and_step(capsys, tmp_path, tiny_cfg):
     """`--resume` alone (what the Ctrl-C message says to type) continues with the run's --lr and
     --iterations, not the profile's."""
@@ -546,6 +569,21 @@ def test_demo_checks_its_pictures_paths_before_the_work(capsys, tmp_path):
     assert out == "" and [p.name for p in tmp_path.iterdir()] == ["one_shot_trial.gif"]   # no one_shot.png
 
 
+def test_demo_interrupted_wipes_its_progress_bar_and_says_so_in_one_line(capsys, tmp_path, monkeypatch):
+    """Ctrl-C during the trials: the half-drawn bar is wiped, the terminal shows `error: interrupted` alone."""
+    real, calls = demo.imitation.rollout, []
+
+    def rollout(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 5:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+    monkeypatch.setattr(demo.imitation, "rollout", rollout)
+    line, _ = refused(capsys, demo.main, ["--out", str(tmp_path), "--trials", "2"], status=130)
+    assert line == "error: interrupted"
+    nothing_written(tmp_path)
+
+
 def test_demo_refuses_a_policy_that_does_not_adapt_before_the_demonstrations(capsys, tmp_path):
     path = tmp_path / "random.npz"
     cfg, rng = dataclasses.replace(config.PROFILES["smoke"], method="random"), np.random.default_rng(0)
@@ -566,6 +604,22 @@ def test_collect_checks_out_before_collecting(capsys, tmp_path, where):
     line, printed = refused(capsys, collect.main, ["--out", str(out), *TINY])
     assert "argument --out" in line and printed == ""
     assert [p.name for p in tmp_path.iterdir()] == ["file"]
+
+
+def test_collect_replaces_a_dataset_but_never_another_kind_of_file(capsys, tmp_path, tiny_checkpoint):
+    """A policy or any other file at --out is refused and left as it was; a dataset is replaced."""
+    policy, notes = tmp_path / "policy.npz", tmp_path / "notes.txt"
+    policy.write_bytes(pathlib.Path(tiny_checkpoint).read_bytes())
+    notes.write_text("mine")
+    for path in (policy, notes):
+        before = path.read_bytes()
+        line, printed = refused(capsys, collect.main, ["--out", str(path), "--split", "validation", *TINY])
+        assert f"--out {path} exists and is not a dataset of demonstrations" in line and "move that one aside" in line
+        assert path.read_bytes() == before and printed == ""
+    data = tmp_path / "d.npz"
+    for seed in ("0", "1"):                                   # the second replaces the first
+        collect.main(["--out", str(data), "--split", "validation", "--seed", seed, *TINY])
+        assert datasets.load(data)["metadata"]["seed"] == int(seed)
 
 
 def test_writable_file_tries_the_folder_rather_than_trusting_permissions(tmp_path, monkeypatch):
@@ -636,7 +690,8 @@ def test_run_keeps_the_traceback_of_a_bug():
                                           ("train", ["--iterations", "0"]),
                                           ("evaluate", ["missing-checkpoint.npz"]),
                                           ("demo", ["--checkpoint", "missing-checkpoint.npz"]),
-                                          ("benchmark", ["expert", "--scenes", "0"])])
+                                          ("benchmark", ["expert", "--scenes", "0"]),
+                                          ("benchmark", []), ("experiments", []), ("exercises", [])])
 def test_python_m_exits_with_the_status_and_one_line(tmp_path, module, argv):
     done = subprocess.run([sys.executable, "-m", f"oneshot.{module}", *argv], capture_output=True, text=True,
                           cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60)

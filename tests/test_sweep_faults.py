@@ -2,8 +2,10 @@
 rows it did not produce are never taken for done, two sweeps that share a results folder keep each
 other's rows, a damaged runs.csv is named with its line, and the pool's processes end with the sweep
 however it ends (kill -9, SIGTERM, Ctrl-C once or twice)."""
+import concurrent.futures
 import contextlib
 import fcntl
+import multiprocessing
 import os
 import shutil
 import signal
@@ -12,11 +14,14 @@ import sys
 import time
 
 import pytest
+from tqdm import tqdm
 
 from oneshot.experiments import rows as sweep_rows
+from oneshot.experiments import sweep as sweeping
 from oneshot.experiments.rows import RunSpec
 from oneshot.experiments.sweep import SweepLocked, sweep
 from test_experiments import fake_run, without_time
+
 
 def calls(run_dir):
     """How many times fake_run ran in this run's folder."""
@@ -164,3 +169,20 @@ def test_the_pools_workers_end_with_the_sweep_however_it_ends(tmp_path, how):
         for pid in pids:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
+
+
+def _progress_bar_locks():
+    """In a sweep's worker: the modules of the locks its progress bars take."""
+    tqdm(disable=True).close()
+    lock = tqdm.get_lock()                     # tqdm's own lock holds a list of locks; one set is one lock
+    return [type(each).__module__ for each in getattr(lock, "locks", [lock])]
+
+
+def test_a_sweep_workers_progress_bars_leave_no_named_semaphore_behind():
+    """A worker killed at a second Ctrl-C runs no clean-up, so what it made must need none: tqdm's default
+    lock is a named semaphore, which Python's resource tracker reports as leaked at the sweep's exit."""
+    context = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(1, mp_context=context, initializer=sweeping._worker_start,
+                                                initargs=(os.getpid(),)) as pool:
+        locks = pool.submit(_progress_bar_locks).result(timeout=120)
+    assert locks and not any(module.startswith("multiprocessing") for module in locks), locks

@@ -37,7 +37,7 @@ from oneshot.benchmark.privileged import bench_privileged
 def main(argv=None):
     p = cli.Parser(prog="python -m oneshot.benchmark", description=__doc__,
                    formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = p.add_subparsers(dest="what", required=True)
+    sub = p.add_subparsers(dest="what", required=True, metavar="{expert,collect,maml,privileged}")
     e = sub.add_parser("expert", help="iLQG solve time and expert success rate")
     e.add_argument("--scenes", type=cli.positive_int, default=500,
                    help="random scenes to plan and run the expert in (default 500)")

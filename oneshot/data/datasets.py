@@ -180,6 +180,11 @@ def save(dataset, path):
     return meta
 
 
+def is_dataset(path):
+    """Does `path` hold a dataset's arrays (what `save` writes; `load` checks the rest)?"""
+    return {"metadata", "images"} <= npz.members(path)
+
+
 def load(path):
     """Read and check a dataset written by `save`. Returns the dataset dict (with "metadata").
 

@@ -5,6 +5,7 @@ arrays are the same bytes, read without trusting the file. Datasets (data/datase
     npz.write(f, {"x": x, "y": y})                 # f: a binary file; one .npy member per array
     npz.checksum({"x": x, "y": y}, ["x", "y"])     # what the file records of its arrays
     arrays = npz.read("a.npz")                     # {"x": x, "y": y}
+    npz.members("a.npz")                           # {"x", "y"}: what it holds, no array read
     with npz.Reader("a.npz") as archive:           # to look before reading gigabytes:
         dtype, shape = archive.layout["x"]         # from the .npy header alone, nothing read yet
         x = archive.read("x")
@@ -71,6 +72,16 @@ def read(path):
     Raises Damaged if the file is not a sound .npz of arrays."""
     with Reader(path) as archive:
         return {name: archive.read(name) for name in archive.layout}
+
+
+def members(path):
+    """The names of the arrays in the .npz file at `path` (a set; none read), or an empty set if there is
+    no sound .npz there: to tell what kind of file an output would replace."""
+    try:
+        with Reader(path) as archive:
+            return set(archive.layout)
+    except (ValueError, OSError):                # Damaged and files.RefusedPath are ValueErrors
+        return set()
 
 
 class Reader:

@@ -22,7 +22,7 @@ import sys
 from oneshot.exercises import EXERCISES, gradebook
 from oneshot.exercises.grading import grade, grade_submission
 from oneshot.exercises.sandbox import Limits, sandbox_gaps
-from oneshot.exercises.submissions import SubmissionError, is_submission, submissions
+from oneshot.exercises.submissions import SubmissionError, is_submission, passed_over, submissions
 from oneshot.tools import cli
 
 _BASELINE_MB = 300                 # what a sandbox maps before the submission runs (Python, NumPy, autograd)
@@ -110,6 +110,9 @@ def _grade(args):
                      f"{jobs} submissions at once (--jobs) x --memory {args.memory} MB (+{_BASELINE_MB} MB each "
                      f"for Python)", "use fewer jobs or less memory")
     _warn()
+    for name, why in passed_over(args.dir):
+        print(f"warning: {name} is not graded: it is {why}, which the grader never follows or reads; "
+              f"put the file itself in {args.dir}", file=sys.stderr)
     graded = grade(args.dir, args.exercises, _limits(args), args.jobs, found=found)    # Ctrl-C, SIGTERM: cli.run
     numbers = args.exercises or sorted(EXERCISES)
     for path, text in ((args.csv, gradebook.csv_text), (args.json, gradebook.json_text)):
@@ -158,8 +161,7 @@ def main(argv=None):
         return _check(args)
     if args.command == "list":
         return _list()
-    parser().print_help()
-    return 2
+    parser().error("name a command: list, check or grade")
 
 
 if __name__ == "__main__":

@@ -63,6 +63,18 @@ def submissions(folder):
     return found
 
 
+def passed_over(folder):
+    """[(name, why), ...]: what in `folder` is named like a submission but is not one `submissions` takes
+    (a symbolic link, a FIFO, a device: never followed or read), for the grader to say so."""
+    passed = []
+    for p in sorted(Path(folder).iterdir()):
+        if p.name.startswith((".", "_")) or is_submission(p) or not (p.suffix in (".py", ".ipynb") or p.is_symlink()):
+            continue
+        why = "a symbolic link" if p.is_symlink() else "not a regular file or folder"
+        passed.append((p.name, why))
+    return passed
+
+
 def notebook_cells(path):
     """[(cell number, its code), ...] of a notebook's code cells, numbered from 1 among all its cells;
     shell and magic lines are turned into `pass` (see the module's docstring)."""

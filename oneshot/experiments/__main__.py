@@ -38,7 +38,8 @@ import shlex
 import signal
 import sys
 
-from oneshot.experiments.fig2 import PROFILES, ensure_data, load_results, plan, run_context, run_one
+from oneshot.experiments.fig2 import (PROFILES, check_results_folder, ensure_data, load_results, plan, run_context,
+                                      run_one)
 from oneshot.experiments.lines import LABELS, LINES
 from oneshot.experiments.parts import narrow
 from oneshot import methods
@@ -63,13 +64,6 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse, but an argument error is one line on stderr (and exit status 2)."""
-
-    def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
-
-
 def _executor(args, stack):
     """The executor the flags ask for (None: the sweep's own process pool)."""
     if args.scheduler or args.local_cluster:
@@ -84,9 +78,9 @@ def _executor(args, stack):
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
-    p = _Parser(prog="python -m oneshot.experiments", description=__doc__,
+    p = cli.Parser(prog="python -m oneshot.experiments", description=__doc__,
                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    commands = p.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
+    commands = p.add_subparsers(dest="experiment", required=True, metavar="{fig2,summarise,seeds,ship}")
     f = commands.add_parser("fig2", help="one-shot success vs. meta-training dataset size, per method")
     f.add_argument("--profile", choices=sorted(PROFILES), default="quick", help="named sweep (default: quick)")
     f.add_argument("--out", type=cli.writable_folder, default=None,
@@ -158,7 +152,8 @@ def main(argv=None):
     out = args.out or os.path.join("results", f"fig2_{cfg.name}")
     try:
         cli.writable_folder(out)
-    except argparse.ArgumentTypeError as e:
+        check_results_folder(PROFILES[args.profile], out)
+    except (argparse.ArgumentTypeError, ValueError) as e:
         f.error(f"argument --out: {e}")
     runs = plan(cfg)
     workers = min(args.workers or 2, os.cpu_count() or 1, len(runs))      # more would only share the cores

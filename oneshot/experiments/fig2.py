@@ -26,7 +26,7 @@ from oneshot.training.config import PROFILES as PROFILES_TRAIN
 from oneshot.expert.controller import ExpertConfig
 from oneshot.world.palette import PaletteConfig
 from oneshot.experiments.lines import ABLATION, FIGURE, FIRST_FIGURE, LINES, LONGER, SEARCH
-from oneshot.experiments.rows import RunSpec, read_rows
+from oneshot.experiments.rows import RunSpec, read_rows, row_id
 from oneshot.world.reach import WorldConfig
 
 
@@ -127,6 +127,29 @@ def plan(cfg):
     whole figure once), within a seed the smaller datasets first, then the lines in the profile's order."""
     runs = [RunSpec(m, c, d, s, iterations(cfg, m)) for m in cfg.methods for c, d in cfg.sizes for s in cfg.seeds]
     return sorted(runs, key=lambda r: (r.seed, r.size, cfg.methods.index(r.method)))
+
+
+def check_results_folder(cfg, folder):
+    """Raise ValueError if the results folder `folder` holds another sweep's results: runs.csv rows that
+    are not runs of the profile `cfg` (the whole profile, not a part of it), or a summary of another
+    profile. A folder holds one profile's results: its summary and figure would otherwise replace
+    another's, and `summarise` would pool both."""
+    ids = {r.run_id for r in plan(cfg)}
+    foreign = [row_id(row) for row in read_rows(os.path.join(folder, "runs.csv")) if row_id(row) not in ids]
+    names = set()
+    for name in sorted(os.listdir(folder)) if os.path.isdir(folder) else []:
+        if name.startswith("summary") and name.endswith(".json"):
+            try:
+                with files.open_read(os.path.join(folder, name), "r") as f:
+                    names.add((files.loads_json(f.read()).get("config") or {}).get("name"))
+            except (ValueError, OSError, AttributeError):
+                continue                       # not a summary we can read: not evidence of another profile
+    names -= {cfg.name, None}
+    if foreign or names:
+        what = (f"runs that are not the {cfg.name} profile's (e.g. {foreign[0]})" if foreign else
+                f"a summary of the {sorted(names)[0]} profile")
+        raise ValueError(f"{folder} holds another sweep's results ({what}); name another folder for "
+                         f"--out (the default is results/fig2_{cfg.name})")
 
 
 def iterations(cfg, line):

@@ -45,8 +45,8 @@ def ship(cfg, line, seed, work_dir, data_dir, out):
     last and was trained with the line's configuration for that run (but for its data's folder and the
     fields a resume may change). Returns the run's spec."""
     spec, folder = finished_run(cfg, line, seed, work_dir)
-    cli.not_an_input(out, [os.path.join(folder, "checkpoint.npz"), folder], "--out",
-                     "the run's own checkpoint or folder (they must stay as trained)")
+    cli.not_an_input(out, [work_dir], "--out", "the sweep's work folder (its runs must stay as trained)")
+    cli.replaces_only(out, checkpoint.is_checkpoint, "--out", "a policy (a checkpoint)")
     ckpt = checkpoint.load(os.path.join(folder, "checkpoint.npz"))
     trained = ckpt["config"]
     expected = run_config(spec, run_context(cfg, os.path.dirname(trained.train_data)))

@@ -20,6 +20,7 @@ import multiprocessing
 import os
 import signal
 import sys
+import threading
 import time
 import traceback
 
@@ -75,10 +76,13 @@ _stopping = False                              # set in a pool worker the sweep 
 def _worker_start(parent):
     """In each pool worker: end with the sweep however it ends, leave Ctrl-C to the sweep (which
     stops the workers with SIGTERM), and treat SIGTERM as Ctrl-C, so that a run saves its checkpoint
-    and the worker starts no other (`execute`)."""
+    and the worker starts no other (`execute`). Its progress bars lock with a thread lock, not tqdm's
+    default of a named semaphore: a worker killed at a second Ctrl-C leaves none behind (which Python's
+    resource tracker would report at the sweep's exit)."""
     die_with_parent(parent)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _stop_worker)
+    tqdm.set_lock(threading.RLock())
 
 
 def _stop_worker(signum, frame):

@@ -122,6 +122,15 @@ def not_an_input(out, inputs, flag, what="an input of this command"):
             raise ValueError(f"{flag} {out} would write into {path}, {what}; name a file outside it for {flag}")
 
 
+def replaces_only(out, same_kind, flag, what):
+    """Raise ValueError if a file exists at the output path `out` (given with `flag`) and `same_kind(out)`
+    is false: an output may replace a file of its own kind (`what`: "a dataset of demonstrations"),
+    never another (a trained policy under a dataset's name)."""
+    if os.path.exists(out) and not same_kind(out):
+        raise ValueError(f"{flag} {out} exists and is not {what}, which this command would write over it; "
+                         f"name another file, or move that one aside first")
+
+
 def _check_folder(folder, path):
     """Raise ArgumentTypeError unless `folder` is, or can be created as, a folder that takes new files."""
     existing = folder

@@ -93,6 +93,12 @@ def save(path, params, adam_state, iteration, rng, cfg, net_cfg, ema=None, world
         npz.write(f, arrays, compress=False)
 
 
+def is_checkpoint(path):
+    """Does `path` hold a checkpoint's arrays (what `save` writes; `load` checks the rest)?"""
+    names = npz.members(path)
+    return "meta" in names and any(name.startswith("params/") for name in names)
+
+
 def load(path):
     """Read and check a checkpoint. Returns {"params", "ema", "adam", "iteration", "rng", "config",
     "network", "world", "state_layout"}: "ema" is the moving average of the parameters, or None if the

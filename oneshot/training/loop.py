@@ -84,7 +84,8 @@ def steps(method, cfg, state, demos, end=None, validation=None, pool=None):
     params, adam, ema = state.params, state.adam, state.ema
     for it in range(state.iteration, end):
         adapt, evaluate = imitation.sample_meta_batch(demos, rng, cfg.meta_batch)          # 1. tasks
-        loss, grads = method.meta_gradient(params, adapt, evaluate, pool)                  # 2. eq. (1), (2)
+        with np.errstate(over="ignore", invalid="ignore"):   # a diverging run: the check below says so
+            loss, grads = method.meta_gradient(params, adapt, evaluate, pool)              # 2. eq. (1), (2)
         bad = [k for k, g in grads.items() if not np.all(np.isfinite(g))]
         if not np.isfinite(loss) or bad:
             raise TrainingDiverged(f"the meta-loss became {float(loss)} at iteration {it + 1}"
