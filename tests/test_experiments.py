@@ -109,6 +109,7 @@ def test_each_profile_with_committed_results_still_plans_their_lines(summary_pat
     assert list(cfg.methods) == committed["config"]["methods"]
     assert [list(s) for s in cfg.sizes] == committed["config"]["sizes"]
     assert list(cfg.seeds) == committed["config"]["seeds"]
+    fig2.check_results_folder(cfg, os.path.dirname(summary_path))     # its own command may write there
 
 
 def test_committed_results_are_found():
@@ -626,7 +627,7 @@ def test_a_finished_run_ships_as_a_policy_that_scores_what_its_row_says(tmp_path
     dataset = fig2.data_paths(TINY, "d")["train"]
     # --out onto any run's checkpoint in --work, or onto a dataset: refused, each file left as it was
     for path, message in ((own, "would write into w, the sweep's work folder"), (other, "would write into w"),
-                          (dataset, "exists and is not a policy (a checkpoint)")):
+                          (dataset, "exists and is not a policy (this command would replace it)")):
         before = open(path, "rb").read()
         with pytest.raises(SystemExit) as e:
             cli.run(command.main, [*ship[:-1], path])

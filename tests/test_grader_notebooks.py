@@ -105,12 +105,14 @@ def test_a_submission_the_grader_will_not_follow_or_read_is_named_not_dropped(tm
     (folder / "henry.py").symlink_to(elsewhere)
     os.mkfifo(folder / "ivan.py")
     (folder / "notes.txt").write_text("not a submission, and not named like one")
+    (folder / "roster.csv").symlink_to(folder / "notes.txt")                 # a link, not named like one
+    (folder / "empty.py").mkdir()                                           # a folder with no code: not one
     assert cli_main.main(["grade", str(folder), "--exercises", "1"]) == 0
     out, err = capsys.readouterr()
     assert [line.split()[0] for line in out.splitlines()] == ["gina.py", "gina.py"]
     assert [line.split()[1] for line in err.splitlines() if line.startswith("warning: ")][-2:] == ["henry.py", "ivan.py"]
-    assert "henry.py is not graded: it is a symbolic link" in err and "ivan.py is not graded: it is not a regular" in err
-    assert "notes.txt" not in err
+    assert "henry.py is not graded: it is a symbolic link" in err and "ivan.py is not graded: it is a FIFO" in err
+    assert not any(name in err for name in ("notes.txt", "roster.csv", "empty.py"))
 
 
 def test_check_file_on_a_notebook(handed_in, capsys):

@@ -607,7 +607,8 @@ def test_collect_checks_out_before_collecting(capsys, tmp_path, where):
 
 
 def test_collect_replaces_a_dataset_but_never_another_kind_of_file(capsys, tmp_path, tiny_checkpoint):
-    """A policy or any other file at --out is refused and left as it was; a dataset is replaced."""
+    """A policy or any other file at --out is refused and left as it was; a dataset is replaced, and so
+    is a file too damaged to tell (a truncated .npz, an empty file: what loading it says to re-create)."""
     policy, notes = tmp_path / "policy.npz", tmp_path / "notes.txt"
     policy.write_bytes(pathlib.Path(tiny_checkpoint).read_bytes())
     notes.write_text("mine")
@@ -620,6 +621,10 @@ def test_collect_replaces_a_dataset_but_never_another_kind_of_file(capsys, tmp_p
     for seed in ("0", "1"):                                   # the second replaces the first
         collect.main(["--out", str(data), "--split", "validation", "--seed", seed, *TINY])
         assert datasets.load(data)["metadata"]["seed"] == int(seed)
+    for damaged in (data.read_bytes()[:-100], b""):
+        data.write_bytes(damaged)
+        collect.main(["--out", str(data), "--split", "validation", *TINY])
+        assert datasets.load(data)["metadata"]["seed"] == 0
 
 
 def test_writable_file_tries_the_folder_rather_than_trusting_permissions(tmp_path, monkeypatch):

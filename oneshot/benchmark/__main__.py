@@ -37,7 +37,7 @@ from oneshot.benchmark.privileged import bench_privileged
 def main(argv=None):
     p = cli.Parser(prog="python -m oneshot.benchmark", description=__doc__,
                    formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = p.add_subparsers(dest="what", required=True, metavar="{expert,collect,maml,privileged}")
+    sub = p.add_subparsers(dest="what", required=True)
     e = sub.add_parser("expert", help="iLQG solve time and expert success rate")
     e.add_argument("--scenes", type=cli.positive_int, default=500,
                    help="random scenes to plan and run the expert in (default 500)")
@@ -85,6 +85,7 @@ def main(argv=None):
     v.add_argument("--feature-points", action="store_true", help="feature points instead of a flattened trunk")
     v.add_argument("--train-data", default="data/train.npz", help="meta-training demonstrations (default data/train.npz)")
     v.add_argument("--seed", type=cli.non_negative_int, default=0, help="parameters, batches and scenes (default 0)")
+    sub.metavar = "{" + ",".join(sub.choices) + "}"      # named so in the error when none is given
     args = p.parse_args(argv)
     world = WorldConfig()                    # the frames and images the benchmarks time
     try:                                     # what must fit in memory, before the work

@@ -181,8 +181,10 @@ def save(dataset, path):
 
 
 def is_dataset(path):
-    """Does `path` hold a dataset's arrays (what `save` writes; `load` checks the rest)?"""
-    return {"metadata", "images"} <= npz.members(path)
+    """May an output replace `path` as a dataset: does it hold a dataset's arrays (what `save` writes;
+    `load` checks the rest), or is it too damaged to tell (which `load` says to re-create)?"""
+    names = npz.members(path)
+    return names is None or npz.kind(names) == "dataset"
 
 
 def load(path):
@@ -223,7 +225,7 @@ def load(path):
 def _read_metadata(path, archive):
     """The metadata dict of the dataset file at `path` (its open `npz.Reader`), of this format version."""
     if "metadata" not in archive.layout:
-        if "meta" in archive.layout and any(k.startswith("params/") for k in archive.layout):
+        if npz.kind(set(archive.layout)) == "checkpoint":
             raise DatasetError(f"{path!r} is a checkpoint (a trained policy), not a dataset; load it with "
                                f"oneshot.training.checkpoint.load, or name a dataset of `python -m oneshot.collect`")
         raise DatasetError(f"{path!r} has no metadata, so it was not written by oneshot; {FIX}")

@@ -6,6 +6,7 @@ arrays are the same bytes, read without trusting the file. Datasets (data/datase
     npz.checksum({"x": x, "y": y}, ["x", "y"])     # what the file records of its arrays
     arrays = npz.read("a.npz")                     # {"x": x, "y": y}
     npz.members("a.npz")                           # {"x", "y"}: what it holds, no array read
+    npz.kind({"meta", "params/w"})                 # "checkpoint" ("dataset", or None: neither)
     with npz.Reader("a.npz") as archive:           # to look before reading gigabytes:
         dtype, shape = archive.layout["x"]         # from the .npy header alone, nothing read yet
         x = archive.read("x")
@@ -34,6 +35,8 @@ from oneshot.tools import files
 MAX_DEFLATE_RATIO = 1032
 
 DATE = (1980, 1, 1, 0, 0, 0)          # every member's date: zip's first day, not the clock
+
+ZIP_MAGIC = b"PK\x03\x04"           # how a zip (an .npz) starts
 
 CHUNK = 1 << 18                       # bytes read at a time into an array (as np.load reads)
 
@@ -75,13 +78,30 @@ def read(path):
 
 
 def members(path):
-    """The names of the arrays in the .npz file at `path` (a set; none read), or an empty set if there is
-    no sound .npz there: to tell what kind of file an output would replace."""
+    """The names of the arrays in the .npz file at `path` (a set; none read): to tell what kind of file an
+    output would replace (`kind`). An empty set if the file is no zip at all (a text file, say), None if
+    it is a zip too damaged to list (or an empty file): then it cannot be told."""
     try:
         with Reader(path) as archive:
             return set(archive.layout)
     except (ValueError, OSError):                # Damaged and files.RefusedPath are ValueErrors
+        pass
+    try:
+        with files.open_read(path) as f:
+            start = f.read(len(ZIP_MAGIC))
+    except (ValueError, OSError):
         return set()
+    return None if start in (b"", ZIP_MAGIC) else set()
+
+
+def kind(names):
+    """What an .npz holding the arrays `names` (a set) is: "dataset" (data/datasets.py), "checkpoint"
+    (training/checkpoint.py), or None (neither)."""
+    if {"metadata", "images"} <= names:
+        return "dataset"
+    if "meta" in names and any(name.startswith("params/") for name in names):
+        return "checkpoint"
+    return None
 
 
 class Reader:

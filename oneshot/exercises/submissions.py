@@ -20,6 +20,7 @@ from pathlib import Path
 
 MAX_BYTES = 50 << 20              # a submission (a notebook with its outputs, or a folder) may hold this much
 KEPT_CELL_MAGICS = ("time", "timeit", "capture")
+SUFFIXES = (".py", ".ipynb")      # a submission's files
 
 
 class SubmissionError(ValueError):
@@ -41,14 +42,14 @@ def _folder(path):
 
 
 def _code_files(folder):
-    return sorted(p for p in Path(folder).iterdir() if p.suffix in (".py", ".ipynb") and _regular(p))
+    return sorted(p for p in Path(folder).iterdir() if p.suffix in SUFFIXES and _regular(p))
 
 
 def is_submission(path):
     """A .py file, a notebook, or a folder holding either (not a link to one: it could point anywhere)."""
     path = Path(path)
     if _regular(path):
-        return path.suffix in (".py", ".ipynb")
+        return path.suffix in SUFFIXES
     return _folder(path) and bool(_code_files(path))
 
 
@@ -64,14 +65,17 @@ def submissions(folder):
 
 
 def passed_over(folder):
-    """[(name, why), ...]: what in `folder` is named like a submission but is not one `submissions` takes
-    (a symbolic link, a FIFO, a device: never followed or read), for the grader to say so."""
+    """[(name, why), ...]: what in `folder` is named like a submission (a .py file, a notebook, or a link
+    to a folder) but is not one `submissions` takes: a symbolic link, a FIFO, a device or a socket, which
+    are never followed or read. For the grader to say so."""
     passed = []
     for p in sorted(Path(folder).iterdir()):
-        if p.name.startswith((".", "_")) or is_submission(p) or not (p.suffix in (".py", ".ipynb") or p.is_symlink()):
+        if p.name.startswith((".", "_")) or is_submission(p) or _folder(p):
             continue
-        why = "a symbolic link" if p.is_symlink() else "not a regular file or folder"
-        passed.append((p.name, why))
+        if p.is_symlink() and (p.suffix in SUFFIXES or p.is_dir()):
+            passed.append((p.name, "a symbolic link"))
+        elif p.suffix in SUFFIXES and not p.is_symlink():
+            passed.append((p.name, "a FIFO, a device or a socket, not a file"))
     return passed
 
 

@@ -80,7 +80,7 @@ def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
     p = cli.Parser(prog="python -m oneshot.experiments", description=__doc__,
                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    commands = p.add_subparsers(dest="experiment", required=True, metavar="{fig2,summarise,seeds,ship}")
+    commands = p.add_subparsers(dest="experiment", required=True)
     f = commands.add_parser("fig2", help="one-shot success vs. meta-training dataset size, per method")
     f.add_argument("--profile", choices=sorted(PROFILES), default="quick", help="named sweep (default: quick)")
     f.add_argument("--out", type=cli.writable_folder, default=None,
@@ -126,6 +126,7 @@ def main(argv=None):
                    help="`python -m oneshot.evaluate CKPT --split S --json FILE` results, one per training seed")
     s.add_argument("--out", type=cli.writable_file, default=None, help="also write the summary here (JSON)")
     h = add_ship_command(commands)
+    commands.metavar = "{" + ",".join(commands.choices) + "}"    # named so in the error when none is given
     args = p.parse_args(argv)
     if args.experiment == "ship":
         return run_ship_command(args, h)

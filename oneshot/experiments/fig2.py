@@ -133,23 +133,29 @@ def check_results_folder(cfg, folder):
     """Raise ValueError if the results folder `folder` holds another sweep's results: runs.csv rows that
     are not runs of the profile `cfg` (the whole profile, not a part of it), or a summary of another
     profile. A folder holds one profile's results: its summary and figure would otherwise replace
-    another's, and `summarise` would pool both."""
+    another's, and `summarise` would pool both. (Its own rows scored otherwise, as the committed
+    `quick` results were before the test split, are run again and replaced: `sweep`.)"""
     ids = {r.run_id for r in plan(cfg)}
     foreign = [row_id(row) for row in read_rows(os.path.join(folder, "runs.csv")) if row_id(row) not in ids]
-    names = set()
-    for name in sorted(os.listdir(folder)) if os.path.isdir(folder) else []:
-        if name.startswith("summary") and name.endswith(".json"):
-            try:
-                with files.open_read(os.path.join(folder, name), "r") as f:
-                    names.add((files.loads_json(f.read()).get("config") or {}).get("name"))
-            except (ValueError, OSError, AttributeError):
-                continue                       # not a summary we can read: not evidence of another profile
-    names -= {cfg.name, None}
+    names = {_profile_of(os.path.join(folder, name)) for name in (os.listdir(folder) if os.path.isdir(folder) else [])
+             if name.startswith("summary") and name.endswith(".json")} - {cfg.name, None}
     if foreign or names:
-        what = (f"runs that are not the {cfg.name} profile's (e.g. {foreign[0]})" if foreign else
-                f"a summary of the {sorted(names)[0]} profile")
-        raise ValueError(f"{folder} holds another sweep's results ({what}); name another folder for "
-                         f"--out (the default is results/fig2_{cfg.name})")
+        what = (f"runs that are not the {cfg.name} profile's (e.g. {foreign[0]})" if foreign
+                else f"a summary of the {sorted(names)[0]} profile")
+        raise ValueError(f"{folder} holds another sweep's results ({what}); name another folder for --out (the "
+                         f"default is results/fig2_{cfg.name})")
+
+
+def _profile_of(path):
+    """The profile a summary file names (its config's "name"), or None if it names none or is unreadable."""
+    try:
+        with files.open_read(path, "r") as f:
+            summary = files.loads_json(f.read())
+    except (ValueError, OSError):
+        return None
+    config = summary.get("config") if isinstance(summary, dict) else None
+    name = config.get("name") if isinstance(config, dict) else None
+    return name if isinstance(name, str) else None
 
 
 def iterations(cfg, line):

@@ -46,7 +46,7 @@ def ship(cfg, line, seed, work_dir, data_dir, out):
     fields a resume may change). Returns the run's spec."""
     spec, folder = finished_run(cfg, line, seed, work_dir)
     cli.not_an_input(out, [work_dir], "--out", "the sweep's work folder (its runs must stay as trained)")
-    cli.replaces_only(out, checkpoint.is_checkpoint, "--out", "a policy (a checkpoint)")
+    cli.replaces_only(out, checkpoint.is_checkpoint, "--out", "a policy")
     ckpt = checkpoint.load(os.path.join(folder, "checkpoint.npz"))
     trained = ckpt["config"]
     expected = run_config(spec, run_context(cfg, os.path.dirname(trained.train_data)))

@@ -127,8 +127,8 @@ def replaces_only(out, same_kind, flag, what):
     is false: an output may replace a file of its own kind (`what`: "a dataset of demonstrations"),
     never another (a trained policy under a dataset's name)."""
     if os.path.exists(out) and not same_kind(out):
-        raise ValueError(f"{flag} {out} exists and is not {what}, which this command would write over it; "
-                         f"name another file, or move that one aside first")
+        raise ValueError(f"{flag} {out} exists and is not {what} (this command would replace it); name another "
+                         f"file, or move that one aside first")
 
 
 def _check_folder(folder, path):

@@ -94,9 +94,10 @@ def save(path, params, adam_state, iteration, rng, cfg, net_cfg, ema=None, world
 
 
 def is_checkpoint(path):
-    """Does `path` hold a checkpoint's arrays (what `save` writes; `load` checks the rest)?"""
+    """May an output replace `path` as a policy: does it hold a checkpoint's arrays (what `save` writes;
+    `load` checks the rest), or is it too damaged to tell?"""
     names = npz.members(path)
-    return "meta" in names and any(name.startswith("params/") for name in names)
+    return names is None or npz.kind(names) == "checkpoint"
 
 
 def load(path):
@@ -124,7 +125,7 @@ def load(path):
 
 def _parse(path, arrays):
     """`load`'s checks and result, from the file's arrays ({"meta": the JSON metadata, name: array}; taken)."""
-    if "meta" not in arrays and "metadata" in arrays and "images" in arrays:
+    if npz.kind(set(arrays)) == "dataset":
         raise CheckpointError(f"{path!r} is a dataset of demonstrations, not a checkpoint; load it with "
                               f"oneshot.data.datasets.load, or name a checkpoint of `python -m oneshot.train`")
     meta = _read_meta(path, arrays.pop("meta", None))

@@ -84,7 +84,9 @@ def steps(method, cfg, state, demos, end=None, validation=None, pool=None):
     params, adam, ema = state.params, state.adam, state.ema
     for it in range(state.iteration, end):
         adapt, evaluate = imitation.sample_meta_batch(demos, rng, cfg.meta_batch)          # 1. tasks
-        with np.errstate(over="ignore", invalid="ignore"):   # a diverging run: the check below says so
+        # A diverging run overflows: the check below says so, and numpy's warnings would only add noise.
+        # (A pool's shard processes are forked inside this block at the first call, so keep its state.)
+        with np.errstate(over="ignore", invalid="ignore"):
             loss, grads = method.meta_gradient(params, adapt, evaluate, pool)              # 2. eq. (1), (2)
         bad = [k for k, g in grads.items() if not np.all(np.isfinite(g))]
         if not np.isfinite(loss) or bad:
