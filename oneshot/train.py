@@ -67,7 +67,8 @@ def main(argv=None):
         cli.writable_folder(run)
     except argparse.ArgumentTypeError as e:
         p.error(f"argument --run: {e}")
-    stored = checkpoint.load(os.path.join(run, "checkpoint.npz"))["config"] if args.resume else None
+    saved = checkpoint.load(os.path.join(run, "checkpoint.npz")) if args.resume else None
+    stored, start = (saved["config"], saved["iteration"]) if saved else (None, 0)
     if args.resume and args.profile is None:   # the run's own config; flags may change only RESUMABLE fields
         cfg = dataclasses.replace(stored, **overrides)
     elif args.resume:                          # the profile named, as the checkpoint has what may change
@@ -140,7 +141,9 @@ def main(argv=None):
         train(cfg, run, resume=args.resume)
     finally:
         signal.signal(signal.SIGTERM, previous)
-    done = f"trained {cfg.iterations} meta-iterations" if method.learns else f"fitted the {cfg.method} policy"
+    done = (f"fitted the {cfg.method} policy" if not method.learns else
+            f"trained {cfg.iterations - start} meta-iteration{'s' * (cfg.iterations - start != 1)}"
+            + (f" (from {start} to {cfg.iterations})" if start else ""))
     print(f"{done} in {time.perf_counter() - t0:.0f} s; checkpoint: {os.path.join(run, 'checkpoint.npz')}")
 
 

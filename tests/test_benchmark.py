@@ -33,6 +33,7 @@ def test_maml_breakdown_finds_every_part_of_a_meta_gradient():
 def test_maml_reads_its_rate_against_the_ceiling_measured_in_the_same_run():
     result = benchmark("--profile", "smoke", "--iterations", "1", "--blas-threads", "1")
     assert (result["shards"], result["blas_threads"], result["ceiling_cores"]) == (1, 1, 1)
+    assert ("warning" in result) == (result["percent_of_ceiling"] > 100)     # a busy machine's figure says so
     rate = result["gflop_per_iteration"] / result["seconds_per_iteration"]
     assert result["gflop_per_second"] == pytest.approx(rate, rel=0.02)
     assert result["percent_of_ceiling"] == pytest.approx(100 * rate / result["ceiling_gflop_per_second"], rel=0.02)
@@ -67,9 +68,16 @@ def test_maml_times_a_figure_2_line_as_its_sweep_trains_it():
     assert result["gflop_per_iteration"] != benchmark("--profile", "released", "--iterations", "1", "--meta-batch", "2",
                                                       "--shards", "1", "--blas-threads", "1")["gflop_per_iteration"]
     for argv, message in ((["--profile", "released", "--line", line], "not allowed with argument --profile"),
-                          (["--line", "random"], "argument --line: invalid choice: 'random'")):
+                          (["--line", "random"], "argument --line: invalid choice: 'random'"),
+                          (["--line", line, "--method", "lstm"], f"the line {line} names its method; drop --method"),
+                          (["--line", "lstm", "--breakdown"], "not the lstm baseline's: time a profile or a line of MIL")):
         out = subprocess.run([sys.executable, "-m", "oneshot.benchmark", "maml", *argv], capture_output=True, text=True)
         assert out.returncode == 2 and message in out.stderr
+
+
+def test_a_baselines_iteration_reports_no_inner_loop():
+    result = benchmark("--profile", "smoke", "--method", "lstm", "--iterations", "1", "--blas-threads", "1")
+    assert result["method"] == "lstm" and not {"inner_steps", "inner_params", "first_order"} & set(result)
 
 
 def test_collect_benchmark_takes_at_least_two_demos_per_colour(monkeypatch):

@@ -402,3 +402,11 @@ def test_a_dataset_and_a_checkpoint_taken_for_each_other_are_named_for_what_they
         datasets.load(tmp_path / "c.npz")
     with pytest.raises(checkpoint.CheckpointError, match="is a dataset of demonstrations, not a checkpoint"):
         checkpoint.load(tiny_split_datasets["validation"])
+
+
+def test_a_missing_checkpoint_names_the_command_that_makes_it(tmp_path):
+    """A run folder's checkpoint: the command names that run folder (not the default one)."""
+    with pytest.raises(FileNotFoundError, match=f"train one with `python -m oneshot.train --run {tmp_path / 'seed0'}`"):
+        checkpoint.load(tmp_path / "seed0" / "checkpoint.npz")
+    with pytest.raises(FileNotFoundError, match="train one with `python -m oneshot.train`$"):
+        checkpoint.load(tmp_path / "policy.npz")

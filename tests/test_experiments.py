@@ -575,19 +575,32 @@ def test_the_two_level_interval_on_a_case_computed_by_hand():
         stats.interval(np.array([[3]]), np.array([[2]]))
 
 
-@pytest.mark.parametrize("folder, says", [("missing", "holds no runs.csv; name a sweep's results folder"),
-                                          ("damaged", "not a runs.csv row (it has 2 fields, not 13); name another "
-                                                      "results folder to compare with")])
+@pytest.mark.parametrize("folder, says", [
+    ("missing", "holds no runs.csv; name a sweep's results folder"),
+    ("damaged", "not a runs.csv row (it has 2 fields, not 13); name another results folder to compare with"),
+    ("unrelated", "holds no point of this sweep (no runs.csv rows of its lines and sizes); name the results of "
+                  "the same profile, e.g. results/fig2_tiny"),
+    ("validation", "was scored on the validation colours and this sweep scores the test colours: their points "
+                   "do not compare")])
 def test_a_compare_folder_is_checked_before_the_sweep(tmp_path, monkeypatch, capsys, folder, says):
+    """Before any data or run: a compare folder that is missing, damaged, shares no point with the sweep,
+    or was scored on other colours (the committed quick results predate the test split) is refused."""
+    committed = os.path.join(os.path.dirname(__file__), "..", "results", "fig2_quick")
     monkeypatch.chdir(tmp_path)
     os.makedirs("damaged")
     with open(os.path.join("damaged", "runs.csv"), "w") as f:
         f.write(",".join(COLUMNS) + "\nhello,world\n")
+    shutil.copytree(committed, "unrelated")                       # the quick profile's: no point of tiny's
+    os.makedirs("validation")                                     # tiny's points, scored on validation
+    sweep_rows.write_rows([sweep_rows.row_of(plan(TINY)[0], {"successes": 1, "trials": 4}, 1.0)],
+                          os.path.join("validation", "runs.csv"))
+    with open(os.path.join("validation", "summary.json"), "w") as f:
+        json.dump({"config": {"name": "tiny", "score": "validation"}}, f)
     with pytest.raises(SystemExit) as e:
         command.main(["fig2", "--profile", "tiny", "--no-progress", "--compare", folder])
     err = capsys.readouterr().err
-    assert e.value.code == 2 and "argument --compare: " in err and says in err
-    assert sorted(os.listdir(".")) == ["damaged"]                  # no data collected, no run, no results
+    assert e.value.code == 2 and "argument --compare: " in err and says in err, err
+    assert sorted(os.listdir(".")) == ["damaged", "unrelated", "validation"]   # no data collected, no run, no results
 
 
 def test_compare_says_which_points_agree_within_their_interval():

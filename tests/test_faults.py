@@ -94,7 +94,7 @@ def test_a_bare_resume_continues_a_smoke_run_with_its_own_config(capsys, smoke, 
     capsys.readouterr()
     train.main(["--run", str(run), "--resume", "--iterations", "2"])
     out, err = capsys.readouterr()
-    assert "trained 2 meta-iterations" in out and "collecting" not in err
+    assert "trained 1 meta-iteration (from 1 to 2)" in out and "collecting" not in err
     ckpt = checkpoint.load(run / "checkpoint.npz")
     assert ckpt["iteration"] == 2 and ckpt["config"] == dataclasses.replace(
         config.PROFILES["smoke"], train_data=smoke.train_data, validation_data=smoke.validation_data, iterations=2)

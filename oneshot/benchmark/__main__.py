@@ -113,6 +113,8 @@ def main(argv=None):
                                        ("shards", args.shards), ("method", args.method),
                                        ("lstm_units", args.lstm_units)) if v is not None}
         timed = args.line or args.profile or "default"
+        if args.line and args.method:          # a line names its method
+            m.error(f"argument --method: the line {args.line} names its method; drop --method (or --line)")
         if args.line:                        # as fig2 trains a line: one process (of one BLAS thread)
             overrides.setdefault("shards", 1)
         if args.breakdown:

@@ -81,8 +81,8 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, rollo
     method, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
     cfg = method.cfg
     if not method.adapts:
-        raise ValueError("--breakdown times MIL's meta-gradient on frame shards, not a baseline's (drop --method, "
-                         "or time a line of MIL)")
+        raise ValueError(f"--breakdown times MIL's meta-gradient on frame shards, not the {cfg.method} baseline's: "
+                         f"time a profile or a line of MIL")
     batch = [synthetic_demos(rng, cfg.meta_batch, T, image_size) for _ in range(2)]
     adapt, evaluate = (shards.split_frames(demos, cfg.shards)[-1] for demos in batch)  # the training process's part
     B, frames = adapt[0].shape[:2]

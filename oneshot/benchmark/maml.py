@@ -102,13 +102,18 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
     ceilings.append(sgemm_rate())
     s, ceiling = float(np.median(times[2:])), float(np.median(ceilings))
     flops = method.meta_gradient_flops(net_cfg, T, B)
-    result = {timed_key(profile): profile, "method": cfg.method, "meta_batch": B, "inner_steps": cfg.inner_steps,
-              "inner_params": cfg.inner_params, "T": T, "image_size": image_size, "first_order": cfg.first_order,
-              "shards": method.shards, "blas_threads": threads,
+    inner_loop = {"inner_steps": cfg.inner_steps, "inner_params": cfg.inner_params,
+                  "first_order": cfg.first_order} if method.adapts else {}          # a baseline has none
+    result = {timed_key(profile): profile, "method": cfg.method, "meta_batch": B, **inner_loop, "T": T,
+              "image_size": image_size, "shards": method.shards, "blas_threads": threads,
               "seconds_per_iteration": round(s, 4),
               "gflop_per_iteration": round(flops / 1e9, 2), "gflop_per_second": round(flops / 1e9 / s, 1),
               "ceiling_gflop_per_second": round(ceiling, 1), "ceiling_cores": ceiling_threads,
               "percent_of_ceiling": round(100 * flops / 1e9 / s / ceiling, 1)}
+    if result["percent_of_ceiling"] > 100:
+        result["warning"] = (f"above 100% of the ceiling: other work shared the cores while it was measured "
+                             f"({', '.join(f'{c:.0f}' for c in ceilings)} GFLOP/s before and after); time it "
+                             f"with the cores otherwise idle")
     if peer is not None:
         result.update({"peer": peer, "shards": 1, "blas_threads": None})
     return result

@@ -9,7 +9,7 @@ run scored on the profile's split (`oneshot.experiments.fig2`):
     python -m oneshot.experiments fig2 --profile ablation --lines mil-released --seeds 0   # one run again
     python -m oneshot.experiments fig2 --profile paper --local-cluster 4   # Dask, pip install ".[cluster]"
     python -m oneshot.experiments fig2 --profile paper --scheduler tcp://host:8786
-    python -m oneshot.experiments fig2 --profile quick --compare results/fig2_quick   # check a reproduction
+    python -m oneshot.experiments fig2 --profile paper --compare results/fig2_paper   # check a reproduction
     python -m oneshot.experiments summarise results/fig2_paper-validation   # summary, figure from runs.csv
     python -m oneshot.experiments seeds results/default_seeds/seed*_test.json   # one recipe over its seeds
     python -m oneshot.experiments fig2 --profile ablation --data-only     # its datasets only
@@ -38,8 +38,8 @@ import shlex
 import signal
 import sys
 
-from oneshot.experiments.fig2 import (PROFILES, check_results_folder, ensure_data, load_results, plan, run_context,
-                                      run_one)
+from oneshot.experiments.fig2 import (PROFILES, check_comparable, check_results_folder, ensure_data, load_results,
+                                      plan, run_context, run_one)
 from oneshot.experiments.lines import LABELS, LINES
 from oneshot.experiments.parts import narrow
 from oneshot import methods
@@ -147,7 +147,8 @@ def main(argv=None):
             f.error(f"argument --compare: {args.compare} holds no runs.csv; name a sweep's results folder, e.g. "
                     f"results/fig2_{cfg.name}")
         try:
-            read_rows(os.path.join(args.compare, "runs.csv"), fix="name another results folder to compare with")
+            check_comparable(cfg, args.compare, read_rows(os.path.join(args.compare, "runs.csv"),
+                                                          fix="name another results folder to compare with"))
         except ValueError as e:
             f.error(f"argument --compare: {e}")
     out = args.out or os.path.join("results", f"fig2_{cfg.name}")

@@ -137,7 +137,8 @@ def check_results_folder(cfg, folder):
     `quick` results were before the test split, are run again and replaced: `sweep`.)"""
     ids = {r.run_id for r in plan(cfg)}
     foreign = [row_id(row) for row in read_rows(os.path.join(folder, "runs.csv")) if row_id(row) not in ids]
-    names = {_profile_of(os.path.join(folder, name)) for name in (os.listdir(folder) if os.path.isdir(folder) else [])
+    names = {_summary_config(os.path.join(folder, name)).get("name")
+             for name in (os.listdir(folder) if os.path.isdir(folder) else [])
              if name.startswith("summary") and name.endswith(".json")} - {cfg.name, None}
     if foreign or names:
         what = (f"runs that are not the {cfg.name} profile's (e.g. {foreign[0]})" if foreign
@@ -146,16 +147,31 @@ def check_results_folder(cfg, folder):
                          f"default is results/fig2_{cfg.name})")
 
 
-def _profile_of(path):
-    """The profile a summary file names (its config's "name"), or None if it names none or is unreadable."""
+def check_comparable(cfg, folder, rows):
+    """Raise ValueError unless the results in `folder` (its runs.csv `rows`) can be compared point by
+    point with the sweep `cfg` (`--compare`), before any run: they share a point (line and size), and
+    were scored on the same split (its summary's "score"; a summary from before the test split, with none,
+    scored the validation colours)."""
+    points = {(r.method, r.size) for r in plan(cfg)}
+    if not any((row["method"], row["size"]) in points for row in rows):
+        raise ValueError(f"{folder} holds no point of this sweep (no runs.csv rows of its lines and sizes); name "
+                         f"the results of the same profile, e.g. results/fig2_{cfg.name}")
+    config = _summary_config(os.path.join(folder, "summary.json"))
+    score = config.get("score", "validation") if config else None
+    if score is not None and score != cfg.score:
+        raise ValueError(f"{folder} was scored on the {score} colours and this sweep scores the {cfg.score} colours: "
+                         f"their points do not compare; name results scored on the {cfg.score} colours")
+
+
+def _summary_config(path):
+    """The config a summary file records (a dict; {} if it records none or cannot be read)."""
     try:
         with files.open_read(path, "r") as f:
             summary = files.loads_json(f.read())
     except (ValueError, OSError):
-        return None
+        return {}
     config = summary.get("config") if isinstance(summary, dict) else None
-    name = config.get("name") if isinstance(config, dict) else None
-    return name if isinstance(name, str) else None
+    return {k: v for k, v in config.items() if k != "name" or isinstance(v, str)} if isinstance(config, dict) else {}
 
 
 def iterations(cfg, line):

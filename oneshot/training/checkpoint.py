@@ -112,7 +112,9 @@ def load(path):
     file is damaged or inconsistent."""
     path = os.fspath(path)
     if not os.path.exists(path):
-        raise FileNotFoundError(f"no checkpoint at {path!r}; train one with `python -m oneshot.train`")
+        run = os.path.dirname(path) if os.path.basename(path) == "checkpoint.npz" else ""
+        raise FileNotFoundError(f"no checkpoint at {path!r}; train one with `python -m oneshot.train"
+                                f"{' --run ' + run if run else ''}`")
     if os.path.isdir(path):
         raise CheckpointError(f"{path!r} is a folder; name the checkpoint's .npz file")
     # 1. The arrays, each header checked before its data is read; zipfile checks the CRCs.
