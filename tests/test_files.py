@@ -46,6 +46,16 @@ def no_hang():
     signal.signal(signal.SIGALRM, previous)
 
 
+@pytest.fixture
+def keep():
+    """What `make` must keep open during a test (a socket's server), closed after it: left to the garbage
+    collector, an open socket warns (ResourceWarning) in whichever later test collects it."""
+    held = []
+    yield held
+    for thing in held:
+        thing.close()
+
+
 def make(kind, path, keep):
     """Put a `kind` of thing at `path`: "FIFO", "socket", "character device", "folder", or "link to a
     FIFO". Returns a pattern of what a refusal says it is. `keep`: a list holding what must stay open."""
@@ -143,8 +153,8 @@ def test_writing_through_a_link_writes_its_target_and_keeps_the_link(tmp_path, d
 
 @pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("writer", WRITERS)
-def test_writers_refuse_what_is_not_a_regular_file_and_leave_it(tmp_path, dataset, writer, kind):
-    path, keep = tmp_path / "out.png", []
+def test_writers_refuse_what_is_not_a_regular_file_and_leave_it(tmp_path, dataset, writer, kind, keep):
+    path = tmp_path / "out.png"
     what = make(kind, path, keep)
     before = mode_of(path)
     with pytest.raises(ValueError, match=refusal("write", path, what)):
@@ -180,8 +190,8 @@ def test_a_replaced_file_keeps_its_permissions_and_a_new_one_gets_the_usual(tmp_
 # The command line refuses the same, before any work.
 
 @pytest.mark.parametrize("kind", ["character device", "FIFO", "socket", "link to a FIFO"])
-def test_collect_refuses_out_that_is_no_file_before_collecting(capsys, tmp_path, kind):
-    path, keep = tmp_path / "d.npz", []
+def test_collect_refuses_out_that_is_no_file_before_collecting(capsys, tmp_path, kind, keep):
+    path = tmp_path / "d.npz"
     make(kind, path, keep)
     before = mode_of(path)
     line, printed = refused(capsys, collect.main, ["--out", str(path), *TINY])
@@ -223,9 +233,9 @@ READERS = {
 
 @pytest.mark.parametrize("kind", ["FIFO", "character device", "socket", "link to a FIFO"])
 @pytest.mark.parametrize("reader", READERS)
-def test_readers_refuse_what_is_not_a_regular_file_without_reading_it(tmp_path, reader, kind):
+def test_readers_refuse_what_is_not_a_regular_file_without_reading_it(tmp_path, reader, kind, keep):
     (tmp_path / "fig2_x").mkdir()
-    path, keep = tmp_path / "fig2_x" / "summary.json", []
+    path = tmp_path / "fig2_x" / "summary.json"
     what = make(kind, path, keep)
     before = mode_of(path)
     with pytest.raises(ValueError, match=refusal("read", path, what)):
