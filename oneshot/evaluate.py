@@ -14,6 +14,7 @@ is missing, one message names them all and the commands that make them.
 import argparse
 import dataclasses
 import json
+import sys
 
 from oneshot import methods
 from oneshot.data import datasets
@@ -110,6 +111,9 @@ def main(argv=None):
         p.error(f"--other-colour-demo needs 2 colours or more in every scored split; "
                 + ", ".join(f"the {split} split has {n}" for split, n in few.items())
                 + (": skip the contrast with --train ''" if "train" in few else ""))
+    if args.raw and ckpt["ema"] is None:
+        print(f"note: {args.checkpoint} kept no moving average: its parameters are the raw ones, with or without "
+              f"--raw", file=sys.stderr)
     results = {}
     for split, dataset in loaded.items():
         condition = method.conditioner(params, seed=args.seed)

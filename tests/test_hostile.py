@@ -520,6 +520,15 @@ def test_evaluate_on_another_palette_only_when_asked(capsys, tmp_path, trained):
     assert results["validation"]["trials"] == 2                     # a transfer test: it runs
 
 
+def test_evaluate_raw_on_a_run_without_a_moving_average_says_it_changes_nothing(capsys, trained):
+    """The smoke profile keeps no moving average: --raw scores what it always does, and says so."""
+    plain = evaluate.main([trained, "--train", "", "--trials", "1"])
+    assert "moving average" not in capsys.readouterr().err
+    raw = evaluate.main([trained, "--train", "", "--trials", "1", "--raw"])
+    assert f"note: {trained} kept no moving average: its parameters are the raw ones" in capsys.readouterr().err
+    assert raw["validation"]["successes"] == plain["validation"]["successes"]
+
+
 @pytest.mark.parametrize("damaged", ["checkpoint", "dataset"])
 def test_evaluate_names_a_damaged_file(capsys, tmp_path, trained, tiny_datasets, damaged):
     source = trained if damaged == "checkpoint" else tiny_datasets[1]
