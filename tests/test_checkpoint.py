@@ -14,7 +14,7 @@ from oneshot.data import datasets
 from oneshot.maml import optim
 from oneshot import methods
 from oneshot.policy import network
-from oneshot.training import checkpoint, config, fit_check, run_folder
+from oneshot.training import checkpoint, checkpoint_meta, config, fit_check, run_folder
 from oneshot.world.arm import ArmConfig
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
@@ -81,7 +81,7 @@ def old_style(meta):
     for key in ("world", "state_layout", "seconds", "checksum"):
         del meta[key]
     for key in ("config", "network"):
-        for field in checkpoint.ADDED_LATER[key]:
+        for field in checkpoint_meta.ADDED_LATER[key]:
             del meta[key][field]
     meta["network"]["stride"] = 2
 

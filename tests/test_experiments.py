@@ -14,7 +14,7 @@ import pytest
 
 from oneshot import collect, evaluate
 from oneshot.data import datasets
-from oneshot.experiments import __main__ as command, fig2, lines, parts
+from oneshot.experiments import __main__ as command, fig2, folders, lines, parts
 from oneshot.experiments import sweep as sweeping
 from oneshot.training.scoring import wilson_interval
 from oneshot.experiments.fig2 import PROFILES, plan, run_context
@@ -109,7 +109,7 @@ def test_each_profile_with_committed_results_still_plans_their_lines(summary_pat
     assert list(cfg.methods) == committed["config"]["methods"]
     assert [list(s) for s in cfg.sizes] == committed["config"]["sizes"]
     assert list(cfg.seeds) == committed["config"]["seeds"]
-    fig2.check_results_folder(cfg, os.path.dirname(summary_path))     # its own command may write there
+    folders.check_results_folder(cfg, os.path.dirname(summary_path))     # its own command may write there
 
 
 def test_committed_results_are_found():

@@ -12,7 +12,7 @@ import pytest
 
 from oneshot.data import collection, datasets
 from oneshot.expert import controller
-from oneshot.training import checkpoint
+from oneshot.training import checkpoint_meta
 from oneshot.world import palette
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.render import world_to_pixels
@@ -298,6 +298,6 @@ def test_files_of_the_test_levels_versions_read_as_the_same_test_colours():
     grid["test_levels"] = [list(t[1:]) for t in grid.pop("test_colours")]
     assert palette.saved_config(grid) == palette.PaletteConfig(mode="grid")
     world = {"image_size": 32, "horizon": 20, "arm": {"max_torque": 1.0}, "palette": grid}
-    assert checkpoint.world_fields(world, "here")["palette"] == palette.PaletteConfig(mode="grid")
+    assert checkpoint_meta.world_fields(world, "here")["palette"] == palette.PaletteConfig(mode="grid")
     with pytest.raises(TypeError):                                     # what an old file met before
         palette.PaletteConfig(**grid)

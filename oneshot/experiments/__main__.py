@@ -38,8 +38,8 @@ import shlex
 import signal
 import sys
 
-from oneshot.experiments.fig2 import (PROFILES, check_comparable, check_results_folder, ensure_data, load_results,
-                                      plan, run_context, run_one)
+from oneshot.experiments.fig2 import PROFILES, ensure_data, load_results, plan, run_context, run_one
+from oneshot.experiments.folders import check_comparable, check_results_folder
 from oneshot.experiments.lines import LABELS, LINES
 from oneshot.experiments.parts import narrow
 from oneshot import methods

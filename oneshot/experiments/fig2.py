@@ -26,7 +26,7 @@ from oneshot.training.config import PROFILES as PROFILES_TRAIN
 from oneshot.expert.controller import ExpertConfig
 from oneshot.world.palette import PaletteConfig
 from oneshot.experiments.lines import ABLATION, FIGURE, FIRST_FIGURE, LINES, LONGER, SEARCH
-from oneshot.experiments.rows import RunSpec, read_rows, row_id
+from oneshot.experiments.rows import RunSpec, read_rows
 from oneshot.world.reach import WorldConfig
 
 
@@ -127,51 +127,6 @@ def plan(cfg):
     whole figure once), within a seed the smaller datasets first, then the lines in the profile's order."""
     runs = [RunSpec(m, c, d, s, iterations(cfg, m)) for m in cfg.methods for c, d in cfg.sizes for s in cfg.seeds]
     return sorted(runs, key=lambda r: (r.seed, r.size, cfg.methods.index(r.method)))
-
-
-def check_results_folder(cfg, folder):
-    """Raise ValueError if the results folder `folder` holds another sweep's results: runs.csv rows that
-    are not runs of the profile `cfg` (the whole profile, not a part of it), or a summary of another
-    profile. A folder holds one profile's results: its summary and figure would otherwise replace
-    another's, and `summarise` would pool both. (Its own rows scored otherwise, as the committed
-    `quick` results were before the test split, are run again and replaced: `sweep`.)"""
-    ids = {r.run_id for r in plan(cfg)}
-    foreign = [row_id(row) for row in read_rows(os.path.join(folder, "runs.csv")) if row_id(row) not in ids]
-    names = {_summary_config(os.path.join(folder, name)).get("name")
-             for name in (os.listdir(folder) if os.path.isdir(folder) else [])
-             if name.startswith("summary") and name.endswith(".json")} - {cfg.name, None}
-    if foreign or names:
-        what = (f"runs that are not the {cfg.name} profile's (e.g. {foreign[0]})" if foreign
-                else f"a summary of the {sorted(names)[0]} profile")
-        raise ValueError(f"{folder} holds another sweep's results ({what}); name another folder for --out (the "
-                         f"default is results/fig2_{cfg.name})")
-
-
-def check_comparable(cfg, folder, rows):
-    """Raise ValueError unless the results in `folder` (its runs.csv `rows`) can be compared point by
-    point with the sweep `cfg` (`--compare`), before any run: they share a point (line and size), and
-    were scored on the same split (its summary's "score"; a summary from before the test split, with none,
-    scored the validation colours)."""
-    points = {(r.method, r.size) for r in plan(cfg)}
-    if not any((row["method"], row["size"]) in points for row in rows):
-        raise ValueError(f"{folder} holds no point of this sweep (no runs.csv rows of its lines and sizes); name "
-                         f"the results of the same profile, e.g. results/fig2_{cfg.name}")
-    config = _summary_config(os.path.join(folder, "summary.json"))
-    score = config.get("score", "validation") if config else None
-    if score is not None and score != cfg.score:
-        raise ValueError(f"{folder} was scored on the {score} colours and this sweep scores the {cfg.score} colours: "
-                         f"their points do not compare; name results scored on the {cfg.score} colours")
-
-
-def _summary_config(path):
-    """The config a summary file records (a dict; {} if it records none or cannot be read)."""
-    try:
-        with files.open_read(path, "r") as f:
-            summary = files.loads_json(f.read())
-    except (ValueError, OSError):
-        return {}
-    config = summary.get("config") if isinstance(summary, dict) else None
-    return {k: v for k, v in config.items() if k != "name" or isinstance(v, str)} if isinstance(config, dict) else {}
 
 
 def iterations(cfg, line):

@@ -9,7 +9,7 @@ import dataclasses
 import json
 
 from oneshot.data import datasets
-from oneshot.training.checkpoint import CheckpointError, world_fields
+from oneshot.training.checkpoint_meta import CheckpointError, world_fields
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
 

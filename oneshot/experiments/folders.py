@@ -1,0 +1,54 @@
+"""A results folder of Figure 2's sweeps (`results/fig2_<profile>/`) as a command meets it before any run:
+may this sweep write there (`check_results_folder`: one profile's results to a folder), and may its
+points be compared with the results there (`check_comparable`, `fig2 --compare`)?
+"""
+import os
+
+from oneshot.experiments.fig2 import plan
+from oneshot.experiments.rows import read_rows, row_id
+from oneshot.tools import files
+
+
+def check_results_folder(cfg, folder):
+    """Raise ValueError if the results folder `folder` holds another sweep's results: runs.csv rows that
+    are not runs of the profile `cfg` (the whole profile, not a part of it), or a summary of another
+    profile. A folder holds one profile's results: its summary and figure would otherwise replace
+    another's, and `summarise` would pool both. (Its own rows scored otherwise, as the committed
+    `quick` results were before the test split, are run again and replaced: `sweep`.)"""
+    ids = {r.run_id for r in plan(cfg)}
+    foreign = [row_id(row) for row in read_rows(os.path.join(folder, "runs.csv")) if row_id(row) not in ids]
+    names = {_summary_config(os.path.join(folder, name)).get("name")
+             for name in (os.listdir(folder) if os.path.isdir(folder) else [])
+             if name.startswith("summary") and name.endswith(".json")} - {cfg.name, None}
+    if foreign or names:
+        what = (f"runs that are not the {cfg.name} profile's (e.g. {foreign[0]})" if foreign
+                else f"a summary of the {sorted(names)[0]} profile")
+        raise ValueError(f"{folder} holds another sweep's results ({what}); name another folder for --out (the "
+                         f"default is results/fig2_{cfg.name})")
+
+
+def check_comparable(cfg, folder, rows):
+    """Raise ValueError unless the results in `folder` (its runs.csv `rows`) can be compared point by
+    point with the sweep `cfg` (`--compare`), before any run: they share a point (line and size), and
+    were scored on the same split (its summary's "score"; a summary from before the test split, with none,
+    scored the validation colours)."""
+    points = {(r.method, r.size) for r in plan(cfg)}
+    if not any((row["method"], row["size"]) in points for row in rows):
+        raise ValueError(f"{folder} holds no point of this sweep (no runs.csv rows of its lines and sizes); name "
+                         f"the results of the same profile, e.g. results/fig2_{cfg.name}")
+    config = _summary_config(os.path.join(folder, "summary.json"))
+    score = config.get("score", "validation") if config else None
+    if score is not None and score != cfg.score:
+        raise ValueError(f"{folder} was scored on the {score} colours and this sweep scores the {cfg.score} colours: "
+                         f"their points do not compare; name results scored on the {cfg.score} colours")
+
+
+def _summary_config(path):
+    """The config a summary file records (a dict; {} if it records none or cannot be read)."""
+    try:
+        with files.open_read(path, "r") as f:
+            summary = files.loads_json(f.read())
+    except (ValueError, OSError):
+        return {}
+    config = summary.get("config") if isinstance(summary, dict) else None
+    return {k: v for k, v in config.items() if k != "name" or isinstance(v, str)} if isinstance(config, dict) else {}
