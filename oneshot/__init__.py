@@ -10,11 +10,12 @@ GYM_ENV_ID = "oneshot/Reach-v0"       # the world of paper Section IV as a Gymna
 
 def _register(gymnasium):
     """Register `oneshot/Reach-v0` with Gymnasium. Entry points are strings: nothing of the environment
-    is imported until `make` builds one. max_episode_steps is the world's horizon, T = 20
-    (`WorldConfig.horizon`; the env also truncates itself there, so the two agree)."""
+    is imported until `make` builds one. No max_episode_steps: the env truncates itself after its
+    horizon (`WorldConfig.horizon`, T = 20 unless `make(..., horizon=T)`), where it judges success; a
+    registered TimeLimit of 20 would end a longer episode before that, and `make` does not tell the env."""
     if GYM_ENV_ID not in gymnasium.registry:
         gymnasium.register(id=GYM_ENV_ID, entry_point="oneshot.world.gym:ReachEnv",
-                           vector_entry_point="oneshot.world.gym:vector_env", max_episode_steps=20)
+                           vector_entry_point="oneshot.world.gym:vector_env")
 
 
 class _RegisterWhenGymnasiumLoads(importlib.abc.MetaPathFinder):

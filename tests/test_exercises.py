@@ -5,6 +5,7 @@ command line checks a file and grades a folder with a timeout; the notebooks fol
 their test relies on (tag `exercise-N` on the stub cell) and run both as stubs and with solutions."""
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import autograd.numpy as anp
@@ -16,6 +17,7 @@ from helpers import RIGHT_1, RIGHT_9
 from oneshot.expert import ilqg
 from oneshot.exercises import EXERCISES, check, reference
 from oneshot.exercises.__main__ import main
+from oneshot.exercises.compare import Out, compare
 from oneshot.policy.network import forward
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks" / "exercises"
@@ -60,14 +62,18 @@ def _kinematics(first, second, transpose=False):
     return kinematics
 
 
-def _backward_step(bvb=True, mu_identity=False, K_sign=-1):
+def _backward_step(bvb=True, mu_identity=False, K_sign=-1, closed_value=False, use_mu=True):
     def backward_step(Vx, Vxx, A, B, lx, lu, lxx, luu, lux, mu):
+        mu = mu if use_mu else 0.0
         Quu = luu + (B.T @ Vxx @ B if bvb else 0)
         Qux = lux + B.T @ Vxx @ A
         Quu_r = Quu + (mu * np.eye(len(lu)) if mu_identity else mu * B.T @ B)
         Qux_r = Qux + (0 if mu_identity else mu * B.T @ A)
         k, K = -np.linalg.solve(Quu_r, lu + B.T @ Vx), K_sign * np.linalg.solve(Quu_r, Qux_r)
         Qx, Qxx = lx + A.T @ Vx, lxx + A.T @ Vxx @ A
+        if closed_value:                                   # the textbook value update, right only when mu = 0
+            Qu = lu + B.T @ Vx
+            return k, K, Qx - Qux.T @ np.linalg.inv(Quu) @ Qu, Qxx - Qux.T @ np.linalg.inv(Quu) @ Qux
         return (k, K, Qx + K.T @ Quu @ k + K.T @ (lu + B.T @ Vx) + Qux.T @ k,
                 Qxx + K.T @ Quu @ K + K.T @ Qux + Qux.T @ K)
     return backward_step
@@ -104,18 +110,19 @@ def _inner(sign=-1, everything=False, step=lambda alpha: alpha):
     return inner_update
 
 
-def _meta(second_order=True, adapt=True):
+def _meta(second_order=True, adapt=True, reduce=np.sum):
     def meta_gradients(w, alpha, adapt_demo, eval_demo):
         (xa, ya), (xe, ye) = adapt_demo, eval_demo
-        w2 = w - alpha * 2 * np.sum(xa * (w * xa - ya)) if adapt else w
-        first = 2 * np.sum(xe * (w2 * xe - ye))
-        return first * (1 - 2 * alpha * np.sum(xa ** 2) if second_order else 1), first
+        w2 = w - alpha * 2 * reduce(xa * (w * xa - ya)) if adapt else w
+        first = 2 * reduce(xe * (w2 * xe - ye))
+        return first * (1 - 2 * alpha * reduce(xa ** 2) if second_order else 1), first
     return meta_gradients
 
 
-def _context(frame=-1, axis=-1):
+def _context(frame=-1, axis=-1, transpose=False):
     def contextual_input(images, demo_images):
-        context = np.repeat(demo_images[..., frame:frame + 1 or None, :, :, :], images.shape[-4], axis=-4)
+        final = demo_images[..., frame:frame + 1 or None, :, :, :]
+        context = np.repeat(np.swapaxes(final, -2, -3) if transpose else final, images.shape[-4], axis=-4)
         return np.concatenate([images, context], axis=axis)
     return contextual_input
 
@@ -126,9 +133,10 @@ def _wald(successes, trials, z=1.96):
     return max(0.0, p - half), min(1.0, p + half)
 
 
-def _lstm(gate, forget=True):
+def _lstm(gate, forget=True, order="ifgo", forget_bias=0.0):
     def lstm_step(w_h, xw, h, c):
-        i, f, g, o = np.split(xw + h @ w_h, 4, axis=-1)
+        z = dict(zip(order, np.split(xw + h @ w_h, 4, axis=-1)))
+        i, f, g, o = z["i"], z["f"] + forget_bias, z["g"], z["o"]
         c2 = (gate(f) * c if forget else c) + gate(i) * np.tanh(g)
         return gate(o) * np.tanh(c2), c2
     return lstm_step
@@ -164,6 +172,19 @@ WRONG = [
     (9, lambda s, n, z=1.96: reference(9)(s, n), ["z = 1.96 whatever z is given"]),
     (10, _lstm(np.tanh), ["sigmoids"]),
     (10, _lstm(sigmoid, forget=False), ["forget gate"]),
+    (1, lambda e, t, r=0.05: bool(np.linalg.norm(_fifth(e) - t, axis=-1).max() <= r), ["EVERY step"]),
+    (1, lambda e, t, r=0.05: bool(np.linalg.norm(np.asarray(e)[len(e) - len(e) // 5:] - t, axis=-1).min() <= r),
+     ["raised ValueError", "T // 5 is 0", "max(1, T // 5)"]),
+    (2, lambda q, l1, l2: _kinematics(lambda q: q[..., 0], lambda q: q[..., 0] + q[..., 1])(q, l1, l2)[::-1],
+     ["returned (J, p)"]),
+    (3, _backward_step(closed_value=True), ["Q_xx - Q_ux^T Q_uu^-1 Q_ux", "mu = 0.5"]),
+    (3, _backward_step(use_mu=False), ["ignores mu"]),
+    (5, _loss(lambda r: anp.sum(anp.mean(r ** 2, axis=1))), ["a mean over them halves it"]),
+    (7, _meta(reduce=np.mean), ["a mean over the demo's points"]),
+    (8, _context(transpose=True), ["rows and columns are swapped"]),
+    (10, _lstm(sigmoid, order="igfo"), ["TensorFlow's order i, j, f, o"]),
+    (10, _lstm(sigmoid, order="gifo"), ["you read them as g, i, f, o"]),
+    (10, _lstm(sigmoid, forget_bias=1.0), ["forget_bias=1.0"]),
 ]
 
 
@@ -212,6 +233,25 @@ def test_a_function_that_changes_its_input_is_told_so():
         return reference(5)(params, demo)
     assert "changed its argument `params` in place" in message(5, imitation_loss)
     assert "expected a function" in message(5, 3.0)
+
+
+def test_a_near_miss_shows_the_digits_that_differ_and_no_relation_that_is_not_there():
+    text = message(9, lambda s, n, z=1.96: tuple(v * (1 + 2e-6) for v in reference(9)(s, n, z)))
+    got, want = re.search(r"is (\S+); expected (\S+) ", text).groups()
+    assert got != want and "relative difference of 2.0e-06" in text and "times the expected" not in text, text
+    in_float32 = lambda *a: tuple(v.astype(np.float32) for v in reference(10)(*(x.astype(np.float32) for x in a)))
+    text = message(10, in_float32)                         # a 1 x 1 array is its own transpose
+    assert "transpose" not in text and "relative difference" in text, text
+    symmetric, out = np.array([[2.0, 1.0], [1.0, 3.0]]), Out("array", "your M")
+    assert "transpose" not in compare(symmetric + 1e-3, symmetric, out).message
+    assert "transpose" in compare(np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([[1.0, 3.0], [2.0, 4.0]]), out).message
+
+
+def test_exercise_8_keeps_a_float_dtype_as_well_as_an_integer_one():
+    widen = lambda images, demo_images: reference(8)(images, demo_images).astype(np.float64)
+    floats_only = lambda images, demo_images: (widen if images.dtype.kind == "f" else reference(8))(images, demo_images)
+    assert "has dtype float64; expected float32, the inputs' own dtype" in message(8, floats_only)
+    assert "has dtype float64; expected uint8" in message(8, widen)
 
 
 def test_a_loss_autograd_cannot_differentiate_is_told_so():

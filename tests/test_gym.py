@@ -11,6 +11,7 @@ import pytest
 
 import oneshot
 from helpers import check_hostile_scenes, one_line_error
+from oneshot.expert.controller import feedback_torque, plan
 from oneshot.world import arm, palette, render
 from oneshot.world.reach import ReachWorld, WorldConfig, is_success
 from oneshot.world.scene import Scene
@@ -217,22 +218,26 @@ def test_import_oneshot_registers_the_env_and_make_imports_oneshot_itself():
         f"env = gymnasium.make('oneshot:{ENV_ID}')\n"
         "print(env.spec.id, env.spec.max_episode_steps, sorted(env.reset(seed=0)[0]))")
     assert without_import.returncode == 0, without_import.stderr
-    assert without_import.stdout.startswith(f"{ENV_ID} 20 ['end_effector', 'image', 'joint_angles',")
+    assert without_import.stdout.startswith(f"{ENV_ID} None ['end_effector', 'image', 'joint_angles',")
 
 
-@pytest.mark.parametrize("horizon", [20, 10])
-def test_max_episode_steps_is_the_horizon_and_timelimit_agrees_with_the_env(horizon):
-    assert gymnasium.spec(ENV_ID).max_episode_steps == WorldConfig().horizon == ReachEnv().world.config.horizon == 20
-    kwargs = {} if horizon == 20 else {"horizon": horizon, "max_episode_steps": horizon}
-    env = gymnasium.make(ENV_ID, **kwargs)
-    assert env.spec.max_episode_steps == env.unwrapped.world.config.horizon == horizon
-    for _ in range(2):                                 # and again after the TimeLimit's own reset
-        env.reset(seed=0)
+@pytest.mark.parametrize("horizon", [20, 10, 30])
+def test_an_episode_of_any_horizon_runs_to_its_end_where_the_env_judges_success(horizon):
+    """No TimeLimit is registered: one of 20 ended a 30-step episode at step 20, before the env judged
+    success, so even the expert's episode reported failure."""
+    assert gymnasium.spec(ENV_ID).max_episode_steps is None and WorldConfig().horizon == 20
+    env = gymnasium.make(ENV_ID, **({} if horizon == 20 else {"horizon": horizon}))
+    world = env.unwrapped.world
+    assert world.config.horizon == horizon
+    for motionless in (True, False):
+        _, info = env.reset(seed=1)
+        expert = plan(world.state, info["target_position"], world.config.arm, horizon)
         for t in range(horizon):
-            _, _, terminated, truncated, info = env.step(np.zeros(2))
+            action = np.zeros(2) if motionless else feedback_torque(expert, t, world.state, world.config.arm)
+            _, _, terminated, truncated, info = env.step(action)
             assert terminated is False and truncated is (t == horizon - 1)
-        assert info["success"] is False                # judged (a motionless arm fails) at the last step
-        assert env.unwrapped.world.t == horizon        # the env itself ended the episode there
+        assert info["success"] is not motionless       # judged at the last step: the expert reaches
+        assert world.t == horizon                      # the env itself ended the episode there
 
 
 @pytest.mark.parametrize("mode", ["vector_entry_point", "sync", "async"])
@@ -265,7 +270,7 @@ def test_make_vec_steps_the_same_episodes_as_single_envs(mode):
 def test_the_vector_entry_point_refuses_a_timelimit_other_than_the_horizon():
     with pytest.raises(ValueError, match=r"max_episode_steps \(20\) must equal the horizon \(10\).*"
                                          r"horizon=10, max_episode_steps=10"):
-        gymnasium.make_vec(ENV_ID, num_envs=2, horizon=10)
+        gymnasium.make_vec(ENV_ID, num_envs=2, horizon=10, max_episode_steps=20)
     envs = gymnasium.make_vec(ENV_ID, num_envs=2, horizon=10, max_episode_steps=10)
     envs.reset(seed=0)
     assert [envs.step(np.zeros((2, 2)))[3].any() for _ in range(10)] == [False] * 9 + [True]
@@ -306,3 +311,15 @@ def test_complex_or_non_numeric_actions_are_refused_not_truncated():
     for action in (np.array([0.1, -0.2], np.float32), np.array([0, 1]), [0.1, -0.2]):
         env.step(action)                               # real torques of any real dtype still work
     assert env.world.t == 3
+
+
+def test_images_are_writable_and_a_non_real_action_is_refused_in_its_own_words():
+    """np.asarray of a Pillow image is read-only: in-place preprocessing of obs["image"] raised."""
+    env = ReachEnv(render_mode="rgb_array")
+    obs, _ = env.reset(seed=0)
+    for image in (obs["image"], env.step(np.zeros(2))[0]["image"], env.render()):
+        image[:] = 0                                   # raised "assignment destination is read-only"
+    with pytest.raises(ValueError, match=r"got bool \[True, False\]; pass a float array$"):
+        env.step(np.array([True, False]))
+    with pytest.raises(ValueError, match=r"pass a float array \(np.real\(action\) drops an imaginary part\)"):
+        env.step(np.array([1j, 0]))

@@ -33,7 +33,9 @@ Vx (n,), Vxx (n, n): the value function's gradient and Hessian at time t + 1.
 A (n, n), B (n, m): the dynamics linearised at time t, dx_{t+1} = A dx_t + B du_t.
 lx (n,), lu (m,), lxx (n, n), luu (m, m), lux (m, n): the cost's derivatives at time t.
 mu >= 0: the regulariser. It is added to Vxx (Vxx + mu I) where Q_uu and Q_ux are formed
-for the gains; the value update uses the plain, unregularised Q-terms.
+for the gains k, K. The value update (Tassa et al. eq. 11) uses those gains with the plain,
+unregularised Q-terms: V_x = Q_x + K^T Q_uu k + K^T Q_u + Q_ux^T k, and
+V_xx = Q_xx + K^T Q_uu K + K^T Q_ux + Q_ux^T K.
 Returns (k (m,), K (m, n), Vx (n,), Vxx (n, n)): the open-loop step, the feedback gains,
 and the value function's gradient and Hessian at time t.
 """),

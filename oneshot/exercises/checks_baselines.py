@@ -1,5 +1,7 @@
 """Checkers of exercises 8-10 (the experiments, paper Section IV): the contextual baseline's input,
 the Wilson interval of a success rate, one LSTM step. Each compares with the package's own function."""
+import itertools
+
 import numpy as np
 
 from oneshot.methods import contextual, lstm
@@ -28,10 +30,11 @@ def _context_cases():
                  (floats(1, 5, 7, 3), floats(3, 5, 7, 3)))]
 
 
-def _wrong_context(frame=-1, axis=-1, context_first=False, own_frames=False, new_axis=False):
+def _wrong_context(frame=-1, axis=-1, context_first=False, own_frames=False, new_axis=False, transposed=False):
     def contextual_input(images, demo_images):
         source = images if own_frames else demo_images
-        final = np.broadcast_to(source[..., frame:frame + 1 or None, :, :, :], images.shape)
+        final = source[..., frame:frame + 1 or None, :, :, :]
+        final = np.broadcast_to(np.swapaxes(final, -2, -3) if transposed else final, images.shape)
         if new_axis:
             return np.stack([images, final], axis=-1)
         return np.concatenate([final, images] if context_first else [images, final], axis=axis)
@@ -40,7 +43,7 @@ def _wrong_context(frame=-1, axis=-1, context_first=False, own_frames=False, new
 
 CONTEXT = Checker(
     expected=_package_contextual_input, cases=_context_cases, package=(contextual.contextual_images,),
-    out=Out("array", "your input", ("frame", "row", "column", "channel")),
+    out=Out("array", "your input", ("frame", "row", "column", "channel"), keep_dtype=True),
     mistakes=(
         Mistake("you stacked the demo's FIRST image: the context is its FINAL image, demo_images[..., -1, :, :, :], "
                 "where the arm has reached the target", _wrong_context(frame=0)),
@@ -56,6 +59,8 @@ CONTEXT = Checker(
                 _wrong_context(context_first=True)),
         Mistake("you stacked the last of `images` (the policy's own frames): the context is the demo's final "
                 "image, from demo_images", _wrong_context(own_frames=True)),
+        Mistake("your demo image's rows and columns are swapped: it keeps its (H, W) layout, as `images` does",
+                _wrong_context(transposed=True)),
     ))
 
 # ----------------------------------------------------------------------------------------------------
@@ -113,13 +118,23 @@ def _lstm_cases():
             Case("a batch of 2, 3 units, large gate inputs (saturated gates)", step(2, 3, 15.0))]
 
 
-def _wrong_lstm(order="ifgo", gate=lambda x: 1 / (1 + np.exp(-x)), forget=True, squash_cell=True, swap=False):
+def _wrong_lstm(order="ifgo", gate=lambda x: 1 / (1 + np.exp(-x)), forget=True, squash_cell=True, swap=False,
+                forget_bias=0.0):
     def lstm_step(w_h, xw, h, c):
         blocks = dict(zip(order, np.split(xw + h @ w_h, 4, axis=-1)))
-        c_next = (gate(blocks["f"]) * c if forget else c) + gate(blocks["i"]) * np.tanh(blocks["g"])
+        c_next = (gate(blocks["f"] + forget_bias) * c if forget else c) + gate(blocks["i"]) * np.tanh(blocks["g"])
         h_next = gate(blocks["o"]) * (np.tanh(c_next) if squash_cell else c_next)
         return (c_next, h_next) if swap else (h_next, c_next)
     return lstm_step
+
+
+def _order_mistake(order):
+    """Reading z's four blocks in `order` (e.g. "igfo", TensorFlow's i, j, f, o) instead of i, f, g, o."""
+    swapped = [a for a, b in zip(order, "ifgo") if a != b]
+    words = f"you swapped {swapped[1]} and {swapped[0]}" if len(swapped) == 2 else f"you read them as {', '.join(order)}"
+    tensorflow = ": TensorFlow's order i, j, f, o, with j for g" if order == "igfo" else ""
+    return Mistake(f"your gate blocks are in the wrong order: z splits into i, f, g, o, in that order ({words}"
+                   f"{tensorflow})", _wrong_lstm(order=order))
 
 
 _state = lambda what: Out("array", what, ("batch", "unit"))
@@ -127,10 +142,9 @@ LSTM = Checker(
     expected=lstm.lstm_step, cases=_lstm_cases, out=Out("tuple", parts=(_state("your h'"), _state("your c'"))),
     package=(lstm.lstm_step,),
     mistakes=(
-        Mistake("your gate blocks are in the wrong order: z splits into i, f, g, o, in that order (you swapped "
-                "i and f)", _wrong_lstm(order="figo")),
-        Mistake("your gate blocks are in the wrong order: z splits into i, f, g, o, in that order (you swapped "
-                "g and o)", _wrong_lstm(order="ifog")),
+        *(_order_mistake("".join(order)) for order in itertools.permutations("ifgo") if order != tuple("ifgo")),
+        Mistake("your forget gate has a bias of +1 added (TensorFlow's forget_bias=1.0): here c' = s(f) * c + "
+                "s(i) * tanh(g), with no added bias", _wrong_lstm(forget_bias=1.0)),
         Mistake("your gates use tanh: the gates i, f, o are sigmoids s(x) = 1 / (1 + exp(-x)); only g and the "
                 "cell's output use tanh", _wrong_lstm(gate=np.tanh)),
         Mistake("your cell keeps all of c: the forget gate scales it, c' = s(f) * c + s(i) * tanh(g)",

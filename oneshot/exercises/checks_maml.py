@@ -127,12 +127,13 @@ def _meta_cases():
 
 
 def _wrong_meta(swap=False, same=False, adapted=True, factor=lambda a, h: 1 - a * h, two=2.0, score_on_adapt=False,
-                inner_sign=-1):
+                inner_sign=-1, mean=False):
     def meta_gradients(w, alpha, adapt_demo, eval_demo):
         (xa, ya), (xe, ye) = adapt_demo, (adapt_demo if score_on_adapt else eval_demo)
-        w_adapted = w + inner_sign * alpha * two * np.sum(xa * (w * xa - ya)) if adapted else w
-        first = two * np.sum(xe * (w_adapted * xe - ye))
-        second = first if same else first * factor(alpha, two * np.sum(xa * xa))
+        na, ne = (len(xa), len(xe)) if mean else (1, 1)
+        w_adapted = w + inner_sign * alpha * two * np.sum(xa * (w * xa - ya)) / na if adapted else w
+        first = two * np.sum(xe * (w_adapted * xe - ye)) / ne
+        second = first if same else first * factor(alpha, two * np.sum(xa * xa) / na)
         return (float(first), float(second)) if swap else (float(second), float(first))
     return meta_gradients
 
@@ -160,6 +161,8 @@ META = Checker(
                 _wrong_meta(score_on_adapt=True)),
         Mistake("your inner step goes up the gradient: eq. (1) is w' = w - alpha L'(w; adapt)",
                 _wrong_meta(inner_sign=+1)),
+        Mistake("your loss is a mean over the demo's points: eq. (2) SUMS the squared errors, so L'(w) = "
+                "2 sum x (w x - y) and L''(w; adapt) = 2 sum x^2 = {H}", _wrong_meta(mean=True)),
     ))
 
 CHECKERS = {6: INNER, 7: META}

@@ -119,7 +119,8 @@ LOSS = Checker(
                 "(T = {T})", _wrong_loss(lambda r: anp.sum(r ** 2) / len(r))),
         Mistake("your loss is 1/(2T) of the expected value: you averaged over frames and torques; eq. (2) sums "
                 "over frames, and the squared norm sums over the 2 torques", _wrong_loss(lambda r: anp.mean(r ** 2))),
-        Mistake("your loss is half the expected value: eq. (2) has no 1/2",
+        Mistake("your loss is half the expected value: eq. (2) has no 1/2, and its squared norm sums over the "
+                "2 torques (a mean over them halves it)",
                 _wrong_loss(lambda r: 0.5 * anp.sum(r ** 2))),
         Mistake("you sum |pi(o_t) - u_t| without squaring: eq. (2) sums SQUARED errors",
                 _wrong_loss(lambda r: anp.sum(anp.abs(r)))),

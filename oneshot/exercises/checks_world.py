@@ -39,15 +39,19 @@ def _success_cases():
         positions, target = _episode(T, near, d, rng)
         if d == radius:     # on the circle exactly, in binary fractions: every way of computing the distance agrees
             target, positions[near[0]] = np.array([0.25, 0.125]), [0.25 + d, 0.125]
-        cases.append(Case(label, (positions, target, radius), {"T": T, "w": max(1, T // 5), "r": radius}))
+        hint = f"for T = {T} steps, T // 5 is 0: the final fifth is the last max(1, T // 5) steps" if T < 5 else ""
+        cases.append(Case(label, (positions, target, radius), {"T": T, "w": max(1, T // 5), "r": radius}, hint=hint))
+    positions, target = _episode(20, range(16, 19), 0.01, rng, far=0.08)      # the mean 0.0275, the largest 0.08
+    cases.append(Case("a 20-step episode 0.01 m from the target at steps 16-18, 0.08 m at every other step",
+                      (positions, target, 0.05), {"T": 20, "w": 4, "r": 0.05}))
     return cases
 
 
-def _judge(window, squared=False, mean=False, strict=False, fixed=None):
+def _judge(window, squared=False, mean=False, strict=False, fixed=None, every=False):
     def is_success(end_effector, target, success_radius=0.05):
         e = np.asarray(end_effector)
         d = np.sum((window(e) - target) ** 2, -1) if squared else np.linalg.norm(window(e) - target, axis=-1)
-        d = d.mean() if mean else d.min()
+        d = d.mean() if mean else d.max() if every else d.min()
         r = success_radius if fixed is None else fixed
         return bool(d < r if strict else d <= r)
     return is_success
@@ -75,6 +79,8 @@ SUCCESS = Checker(
                 "square with radius ** 2)", _judge(_fifth, squared=True)),
         Mistake("you average the distance over the final fifth: one step within the radius is enough "
                 "(the minimum distance)", _judge(_fifth, mean=True)),
+        Mistake("you require EVERY step of the final fifth to be within the radius: one step within it is "
+                "enough (the minimum distance)", _judge(_fifth, every=True)),
     ))
 
 # ----------------------------------------------------------------------------------------------------
@@ -134,6 +140,8 @@ KINEMATICS = Checker(
                 "(d x / d q1 = -l1 sin q1 - l2 sin(q1 + q2))", _wrong_kinematics(short_column=True)),
         Mistake("your Jacobian has the wrong sign: d cos(a)/da = -sin(a) and d sin(a)/da = +cos(a)",
                 _wrong_kinematics(jacobian_sign=-1)),
+        Mistake("you returned (J, p): the order is (p, J), the position first",
+                lambda q, l1, l2: _package_kinematics(q, l1, l2)[::-1]),
     ))
 
 # ----------------------------------------------------------------------------------------------------
@@ -179,8 +187,9 @@ def _step_cases():
 
 
 def _wrong_step(no_BVB=False, mu_on_quu=False, plain_qux=False, regularised_value=False, K_sign=1, k_sign=1,
-                A_not_transposed=False, no_lux=False, short_value=False):
+                A_not_transposed=False, no_lux=False, short_value=False, closed_value=False, no_mu=False):
     def backward_step(Vx, Vxx, A, B, lx, lu, lxx, luu, lux, mu):
+        mu = 0.0 if no_mu else mu
         At = A if A_not_transposed else A.T
         Qx, Qu = lx + At @ Vx, lu + B.T @ Vx
         Qxx, Qux = lxx + At @ Vxx @ At.T, (0 if no_lux else lux) + B.T @ Vxx @ At.T
@@ -192,6 +201,8 @@ def _wrong_step(no_BVB=False, mu_on_quu=False, plain_qux=False, regularised_valu
             Quu, Qux = Quu_r, Qux_r
         if short_value:
             return k, K, Qx + K.T @ Qu, Qxx - K.T @ Quu @ K
+        if closed_value:
+            return k, K, Qx - Qux.T @ np.linalg.solve(Quu, Qu), Qxx - Qux.T @ np.linalg.solve(Quu, Qux)
         return k, K, Qx + K.T @ Quu @ k + K.T @ Qu + Qux.T @ k, Qxx + K.T @ Quu @ K + K.T @ Qux + Qux.T @ K
     return backward_step
 
@@ -218,6 +229,12 @@ BACKWARD_STEP = Checker(
         Mistake("your V_x = Q_x + K^T Q_u and V_xx = Q_xx - K^T Q_uu K hold only when mu = 0: with mu = {mu} use "
                 "V_x = Q_x + K^T Q_uu k + K^T Q_u + Q_ux^T k and V_xx = Q_xx + K^T Q_uu K + K^T Q_ux + Q_ux^T K",
                 _wrong_step(short_value=True)),
+        Mistake("your V_x = Q_x - Q_ux^T Q_uu^-1 Q_u and V_xx = Q_xx - Q_ux^T Q_uu^-1 Q_ux hold only when mu = 0: "
+                "with mu = {mu} the gains k, K come from the regularised Q-terms, so write the value update with "
+                "them: V_x = Q_x + K^T Q_uu k + K^T Q_u + Q_ux^T k, V_xx = Q_xx + K^T Q_uu K + K^T Q_ux + Q_ux^T K",
+                _wrong_step(closed_value=True)),
+        Mistake("your step ignores mu (here {mu}): the gains use V_xx + mu I, i.e. Q_uu + mu B^T B and "
+                "Q_ux + mu B^T A", _wrong_step(no_mu=True)),
     ))
 
 CHECKERS = {1: SUCCESS, 2: KINEMATICS, 3: BACKWARD_STEP}

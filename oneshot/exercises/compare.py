@@ -21,6 +21,7 @@ class Out:
     labels: tuple = ()
     parts: tuple = ()
     rtol: float = 1e-6
+    keep_dtype: bool = False    # an array must come back in the expected dtype (integer arrays always must)
 
 
 @dataclass(frozen=True)
@@ -43,6 +44,15 @@ class Opaque:
 
 def fmt(x):
     return f"{float(x):.6g}"
+
+
+def fmt_pair(got, want):
+    """Two numbers in words, with as many digits as it takes to tell them apart (6 at least)."""
+    for digits in range(6, 18):
+        g, w = f"{float(got):.{digits}g}", f"{float(want):.{digits}g}"
+        if g != w:
+            break
+    return g, w
 
 
 def describe(x):
@@ -93,8 +103,14 @@ def _compare_number(got, want, out):
     relation = ""
     if w != 0 and g != 0:
         ratio = g / w
-        relation = " (the opposite sign)" if np.isclose(ratio, -1) else f" ({fmt(ratio)} times the expected value)"
-    return Difference(f"{out.what} is {fmt(g)}; expected {fmt(w)}{relation}")
+        if np.isclose(ratio, -1):
+            relation = " (the opposite sign)"
+        elif abs(ratio - 1) < 1e-3:
+            relation = f" (a relative difference of {abs(ratio - 1):.1e}; the checker allows {out.rtol:.0e})"
+        else:
+            relation = f" ({fmt(ratio)} times the expected value)"
+    mine, expected = fmt_pair(g, w)
+    return Difference(f"{out.what} is {mine}; expected {expected}{relation}")
 
 
 def _index(out, index):
@@ -127,26 +143,31 @@ def _compare_array(got, want, out):
     if g.shape != want.shape:
         return Difference(f"{out.what} has shape {g.shape}; expected {want.shape}"
                           f"{_shape_words(g.shape, want.shape, out.axes)}")
-    if want.dtype.kind in "iu" and g.dtype != want.dtype:
+    if (want.dtype.kind in "iu" or out.keep_dtype) and g.dtype != want.dtype:
         return Difference(f"{out.what} has dtype {g.dtype}; expected {want.dtype}, the inputs' own dtype")
     g, w = g.astype(float), want.astype(float)
     scale = np.abs(w).max() if w.size else 0.0
-    close = np.isclose(g, w, rtol=out.rtol, atol=out.rtol * scale + 1e-12)
+    near = lambda a, b: np.isclose(a, b, rtol=out.rtol, atol=out.rtol * scale + 1e-12)
+    close = near(g, w)
     if close.all():
         return None
     index = tuple(int(i) for i in np.argwhere(~close)[0])
     relation = ""
-    if np.allclose(g, -w, rtol=out.rtol, atol=out.rtol * scale + 1e-12):
+    if near(g, -w).all():
         relation = "; it is the expected value with the opposite sign"
-    elif g.ndim >= 2 and g.shape[-1] == g.shape[-2] and np.allclose(g, np.swapaxes(w, -1, -2), rtol=out.rtol):
+    elif (g.ndim >= 2 and g.shape[-1] == g.shape[-2] and near(g, np.swapaxes(w, -1, -2)).all()
+          and not near(w, np.swapaxes(w, -1, -2)).all()):      # a symmetric value is its own transpose
         relation = "; it is the transpose of the expected value"
     else:
         nonzero = np.abs(w) > 1e-9 * max(scale, 1e-300)
         ratios = g[nonzero] / w[nonzero]
         if ratios.size and np.allclose(ratios, ratios[0], rtol=1e-6) and np.allclose(g[~nonzero], 0):
-            relation = f"; it is {fmt(ratios[0])} times the expected value everywhere"
+            relation = (f"; it is {fmt(ratios[0])} times the expected value everywhere" if abs(ratios[0] - 1) >= 1e-3
+                        else f"; a relative difference of {abs(ratios[0] - 1):.1e}, where the checker allows "
+                             f"{out.rtol:.0e}")
     wrong = int((~close).sum())
-    return Difference(f"{out.what}{_index(out, index)} is {fmt(g[index])}; expected {fmt(w[index])}"
+    mine, expected = fmt_pair(g[index], w[index])
+    return Difference(f"{out.what}{_index(out, index)} is {mine}; expected {expected}"
                       f" ({wrong} of {close.size} entries differ{relation})")
 
 

@@ -72,8 +72,8 @@ def state_bounds(config):
 def vector_env(num_envs=1, max_episode_steps=None, **kwargs):
     """Gymnasium's vector entry point (make_vec's default mode, "vector_entry_point"): `num_envs`
     ReachEnvs built with `kwargs`, stepped one after another by a `gymnasium.vector.SyncVectorEnv`
-    (each world is its own Pymunk space, so there is nothing to batch). make_vec passes the spec's
-    max_episode_steps, which must equal the horizon, where the env truncates itself.
+    (each world is its own Pymunk space, so there is nothing to batch). A max_episode_steps given to
+    make_vec must equal the horizon, where the env truncates itself.
     """
     num_envs = whole_number("num_envs", num_envs, "pass a positive number of environments")
     if num_envs < 1:
@@ -90,9 +90,8 @@ class ReachEnv(gymnasium.Env):
 
     split: which colours scenes are drawn from, "train", "validation" or "test"; palette_mode: "hues"
     (72 colours) or "grid" (696; `oneshot.world.palette`); image_size: H = W in pixels; horizon: T, steps per
-    episode (through `gymnasium.make`, pass max_episode_steps=T too: make does not tell the env its
-    TimeLimit, and with T > 20 the registered limit of 20 would end every episode before the env judges
-    success); target_colour: a palette index of the split that every episode uses, or None for a
+    episode, after which the env truncates itself and judges success (no TimeLimit is registered: a
+    `make(..., max_episode_steps=K)` below T would end episodes before that); target_colour: a palette index of the split that every episode uses, or None for a
     random colour per episode; render_mode: None or "rgb_array".
     """
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}   # 20 fps: one frame per 0.05 s step
@@ -159,7 +158,7 @@ class ReachEnv(gymnasium.Env):
         base, _, hand = render.world_to_pixels(self.world.joints(), cfg.arena_half_width, cfg.image_size)
         target = render.world_to_pixels(self.world.scene.target_position, cfg.arena_half_width, cfg.image_size)
         frame = viz.marked_frame(image, RENDER_SCALE, target, viz.ring_radius(cfg), hand=hand, base=base)
-        return np.asarray(frame)
+        return np.array(frame)                                   # writable, as the observation's image is
 
     def close(self):
         """Nothing to release: the world holds only a Pymunk space in memory, no window or file."""

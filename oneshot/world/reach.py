@@ -230,8 +230,9 @@ class ReachWorld:
             raise RuntimeError(f"the episode ended after {self.config.horizon} steps; call reset()")
         action = np.asarray(action)
         if action.dtype.kind not in "iuf":       # a complex torque would lose its imaginary part unseen
+            drop = " (np.real(action) drops an imaginary part)" if action.dtype.kind == "c" else ""
             raise ValueError(f"action must be (2,) real joint torques in N m; got {action.dtype} {action.tolist()}; "
-                             f"pass a float array (np.real(action) drops an imaginary part)")
+                             f"pass a float array{drop}")
         action = action.astype(float, copy=False)
         if action.shape != (2,):
             raise ValueError(f"action must be (2,) joint torques in N m; got shape {action.shape}")

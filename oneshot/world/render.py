@@ -35,4 +35,4 @@ def render(joints, positions, colours, *, arena_half_width, size=32, object_radi
     r = object_radius * scale
     for (px, py), c in zip(world_to_pixels(positions, arena_half_width, big), colours):
         draw.ellipse([px - r, py - r, px + r, py + r], fill=tuple(int(v) for v in c))
-    return np.asarray(image.resize((size, size), Image.BOX))
+    return np.array(image.resize((size, size), Image.BOX))     # a writable copy (asarray: read-only)
