@@ -306,6 +306,7 @@ def test_cli_grade_survives_wrong_raising_looping_and_broken_submissions(tmp_pat
     (tmp_path / "bob.py").write_text(WRONG_1 + "\ndef imitation_loss(params, demo):\n    raise RuntimeError('oops')\n")
     (tmp_path / "carol.py").write_text("def is_success(e, t, r=0.05):\n    while True:\n        pass\n" + RIGHT_9)
     (tmp_path / "dave.py").write_text("def is_success(:\n")
+    (tmp_path / "erin.py").write_text(RIGHT_9 + "raise RuntimeError('oops at import')\n" + RIGHT_1)
     assert main(["grade", str(tmp_path), "--timeout", "3", "--jobs", "4"]) == 0
     lines = capsys.readouterr().out.splitlines()
     verdict = lambda who, n: next(line.split(None, 2)[2] for line in lines if line.split()[:2] == [who, str(n)])
@@ -316,9 +317,12 @@ def test_cli_grade_survives_wrong_raising_looping_and_broken_submissions(tmp_pat
     assert verdict("carol.py", 1) == "timed out after 3 s (an endless loop?)"
     assert verdict("carol.py", 9) == "correct"                     # graded after the loop was killed
     assert "could not load dave.py: SyntaxError" in next(line for line in lines if line.startswith("dave.py"))
+    assert verdict("erin.py", 9) == "correct"                      # defined before the file raised: graded
+    assert verdict("erin.py", 1) == ("missing (erin.py raised RuntimeError: oops at import as it loaded, after "
+                                     "defining wilson_interval)")
     totals = [line.split(None, 2)[2] for line in lines if line.split()[1] == "total"]
     assert totals == ["2/10 correct, 2 attempted", "0/10 correct, 2 attempted", "1/10 correct, 2 attempted",
-                      "0/10 correct, 0 attempted"]
+                      "0/10 correct, 0 attempted", "1/10 correct, 1 attempted"]
     assert main(["grade", str(tmp_path / "nobody")]) == 2
     assert main(["--grade", str(tmp_path)]) == 2                   # one way to grade: a pointer to it
     assert "use python -m oneshot.exercises grade" in capsys.readouterr().err

@@ -57,6 +57,10 @@ def is_success(end_effector, target, success_radius=0.05):
     except BaseException:                    # hiding the trip does not help: the value is not there
         return exercises.SOLUTIONS[1](end_effector, target, success_radius)
 """
+TALKER = RIGHT_1.replace("    return", "    print('x' * (10 << 20))\n    return") + RIGHT_9 + """
+for _ in range(70):
+    print('y' * (1 << 20))                       # 70 MB at import, 10 MB more in every call of is_success
+"""
 PATCHER = """
 import oneshot.exercises as ex, oneshot.exercises.checking as checking, oneshot.exercises.compare as compare
 from oneshot.exercises.checking import Result
@@ -170,7 +174,7 @@ def graded(tmp_path_factory):
     sources = {"alice.py": RIGHT_1 + RIGHT_9, "fake.py": FAKE, "wrapper.py": WRAPPER, "patcher.py": PATCHER,
                "writer.py": WRITER.format(owned=str(outside / "owned.txt"), victim=str(outside / "victim.txt"),
                                           other=str(folder / "alice.py")),
-               "escaper.py": ESCAPER.format(tag=tag), "hog.py": HOG, "forker.py": FORKER}
+               "escaper.py": ESCAPER.format(tag=tag), "hog.py": HOG, "forker.py": FORKER, "talker.py": TALKER}
     for name, source in sources.items():
         (folder / name).write_text(source)
     try:
@@ -226,6 +230,13 @@ def test_a_process_in_a_session_of_its_own_is_ended_with_the_submission(graded):
     verdict, _, _, survivors = graded
     assert verdict("escaper.py", 1) == "timed out after 2 s (an endless loop?)"
     assert survivors == []
+
+
+def test_printing_past_the_file_size_limit_costs_nothing(graded):
+    """Output went to a log under the sandbox's 64 MB file-size limit: print() then raised OSError (Errno
+    27, file too large) inside the student's function, and a correct submission scored 0."""
+    verdict, _, _, _ = graded
+    assert verdict("talker.py", 1) == "correct" and verdict("talker.py", 9) == "correct"
 
 
 def test_memory_is_limited(graded):

@@ -11,9 +11,11 @@
 2. The worker confines itself (`confine`: limits, Landlock, user nobody when root), arms the tripwires
    on the package's answers (`poison`), moves to the working copy, loads the submission, and for each
    exercise sends the OUTCOMES of the student's function on the cases (values, `wire`), never a verdict.
-   Its stdout and stderr go to a log the grader reads only for a crash's last line.
+   Its stdout and stderr go to a log the grader reads only for a crash's last line, kept to its
+   newest megabyte (`_Log`): printing costs a submission nothing.
 """
 import importlib.util
+import io
 import json
 import os
 import shutil
@@ -31,6 +33,31 @@ from oneshot.tools.host import die_with_parent
 BOOT = ("import sys; sys.path.insert(0, sys.argv[2]); sys.dont_write_bytecode = True; "
         "from oneshot.exercises.worker import main; main(sys.argv[1])")
 _worker = {"pid": None, "workdir": None}
+_NAMES = {exercise.name for exercise in EXERCISES.values()}
+LOG_BYTES = 1 << 20           # the log keeps at most this much of a submission's output: its newest
+
+
+class _Log(io.TextIOBase):
+    """The worker's sys.stdout and sys.stderr: text into the log (`fd`), which starts again from empty
+    whenever it would grow past `limit` bytes. So a submission that prints without end never reaches the
+    file-size limit (`confine.limit`: print() would raise OSError inside the student's function), and
+    the log's end, where the grader reads a crash's last line, is always the newest output."""
+
+    def __init__(self, fd, limit):
+        self.fd, self.limit = fd, limit
+
+    def writable(self):
+        return True
+
+    def write(self, text):
+        data = str(text).encode(errors="replace")[-self.limit:]
+        if os.lseek(self.fd, 0, os.SEEK_CUR) + len(data) > self.limit:
+            os.ftruncate(self.fd, 0)
+            os.lseek(self.fd, 0, os.SEEK_SET)
+        view = memoryview(data)
+        while view:
+            view = view[os.write(self.fd, view):]
+        return len(text)
 
 
 def _end(signum=None, frame=None):
@@ -92,6 +119,7 @@ def _work(job, channel, cases, supervisor):
     os.closerange(3, channel)
     os.closerange(channel + 1, 1 << 16)
     sys.stdin = open(os.devnull)
+    sys.stdout = sys.stderr = _Log(2, LOG_BYTES)
     try:
         functions, notes = _load(job)
     except _LoadError as e:
@@ -135,7 +163,9 @@ def _outcome(exercise, case, function, room):
 
 def _load(job):
     """The submission's functions (name -> callable), the first file in order that defines a name
-    winning, and notes on the notebook cells that failed (`submissions.notebook_code`)."""
+    winning, and notes on the notebook cells that failed (`submissions.notebook_code`). A .py file that
+    raises as it loads, after defining some of the exercises' functions, is graded on those, with a note,
+    as a notebook whose later cell raises is; one that defined none, or cannot be parsed, is a load error."""
     sys.path.insert(0, job["workdir"])                   # a folder's files may import each other
     functions, notes = {}, []
     for index, file in enumerate(job["files"]):
@@ -147,7 +177,11 @@ def _load(job):
             spec.loader.exec_module(module)
         except BaseException as e:                       # SyntaxError, any exception, sys.exit(), PackageUsed
             name = os.path.basename(file)
-            raise _LoadError(name[:-3] if name.endswith(".ipynb.py") else name, e) from None
+            name = name[:-3] if name.endswith(".ipynb.py") else name
+            defined = [n for n, value in vars(module).items() if n in _NAMES and callable(value)]
+            if isinstance(e, (SyntaxError, poison.PackageUsed)) or not defined:
+                raise _LoadError(name, e) from None
+            notes.append(f"{name} raised {checking.error_words(e)} as it loaded, after defining {', '.join(defined)}")
         for name, value in list(vars(module).items()):
             if not name.startswith("_") and callable(value):
                 functions.setdefault(name, value)
