@@ -8,10 +8,13 @@
     RIGHT_1, RIGHT_9                            students' right answers to exercises 1 and 9, as source text
     one_line_error, check_hostile_scenes        what the world, and the Gymnasium env on it, refuse in one line
 """
+import inspect
+
 import autograd.numpy as anp
 import numpy as np
 import pytest
 
+from oneshot.exercises import EXERCISES, SOLUTIONS, solutions
 from oneshot.maml import batched, inner
 from oneshot.maml.inner import InnerLoop
 from oneshot.world.scene import Scene
@@ -151,3 +154,19 @@ def wilson_interval(successes, trials, z=1.96):
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
     return max(0.0, centre - half), min(1.0, centre + half)
 """
+
+
+def solution_source(number):
+    """Exercise `number`'s reference solution as a student would type it into a cell: the solutions'
+    imports, the function's source, and the exercise's name bound to it. A copy of the code: the
+    package's own function is flagged by `check` and by the grader."""
+    imports = [line for line in inspect.getsource(solutions).splitlines() if line.startswith(("import ", "from "))]
+    function = SOLUTIONS[number]
+    return "\n".join(imports) + f"\n\n{inspect.getsource(function)}\n{EXERCISES[number].name} = {function.__name__}\n"
+
+
+def student_copy(number):
+    """The function `solution_source(number)` defines, run as a student's cell is (a file of its own)."""
+    namespace = {}
+    exec(compile(solution_source(number), f"<a student's exercise {number}>", "exec"), namespace)
+    return namespace[EXERCISES[number].name]

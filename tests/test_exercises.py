@@ -13,10 +13,11 @@ import numpy as np
 import pytest
 from autograd import grad
 
-from helpers import RIGHT_1, RIGHT_9
+from helpers import RIGHT_1, RIGHT_9, solution_source, student_copy
 from oneshot.expert import ilqg
-from oneshot.exercises import EXERCISES, check, reference
+from oneshot.exercises import CHECKERS, EXERCISES, check, reference
 from oneshot.exercises.__main__ import main
+from oneshot.exercises.checking import run
 from oneshot.exercises.compare import Out, compare
 from oneshot.policy.network import forward
 
@@ -31,9 +32,23 @@ def message(number, function):
 
 @pytest.mark.parametrize("number", sorted(EXERCISES))
 def test_every_reference_solution_is_correct(number, capsys):
-    result = check(number, reference(number))
+    """Typed into a cell (a copy of its code), as a student would write it; its values, by the checker."""
+    result = check(number, student_copy(number))
     assert result.passed and result.message == "correct"
     assert capsys.readouterr().out == f"exercise {number} ({EXERCISES[number].title}): correct\n"
+    assert run(EXERCISES[number], CHECKERS[number], reference(number)).passed
+
+
+@pytest.mark.parametrize("number", sorted(EXERCISES))
+def test_check_flags_the_package_answers_as_the_grader_does(number):
+    """check(9, wilson_interval) with the package's own function, reference(n), or a wrapper around
+    either said "correct" in a notebook, and the grader then flagged it and scored 0."""
+    package = CHECKERS[number].expected          # the package's function, or the checker's call of it
+    for function in (reference(number), package, lambda *args: package(*args)):
+        result = check(number, function, quiet=True)
+        assert not result.passed and result.flagged, result.message
+        assert re.search(r"calls oneshot\.[\w.]+, the package's own \(on .*\): write your own$", result.message)
+    assert check(number, student_copy(number), quiet=True).passed    # and it stays armed nowhere
 
 
 def test_exercises_are_small_frozen_records_numbered_1_to_10():
@@ -169,7 +184,7 @@ WRONG = [
     (8, _context(frame=0), ["FIRST image"]),
     (8, _context(axis=0), ["frame axis"]),
     (9, _wald, ["Wald"]),
-    (9, lambda s, n, z=1.96: reference(9)(s, n), ["z = 1.96 whatever z is given"]),
+    (9, lambda s, n, z=1.96: student_copy(9)(s, n), ["z = 1.96 whatever z is given"]),
     (10, _lstm(np.tanh), ["sigmoids"]),
     (10, _lstm(sigmoid, forget=False), ["forget gate"]),
     (1, lambda e, t, r=0.05: bool(np.linalg.norm(_fifth(e) - t, axis=-1).max() <= r), ["EVERY step"]),
@@ -212,7 +227,7 @@ def _wrong_shape(number):
         if isinstance(result, (bool, np.bool_)):
             return np.array([result, result])
         return np.asarray(result)[None]
-    return lambda *args: mangle(reference(number)(*args))
+    return lambda *args: mangle(student_copy(number)(*args))
 
 
 @pytest.mark.parametrize("number", sorted(EXERCISES))
@@ -230,16 +245,16 @@ def test_functions_that_raise_or_return_the_wrong_shape_are_reported(number):
 def test_a_function_that_changes_its_input_is_told_so():
     def imitation_loss(params, demo):
         params["out_b"] += 1.0
-        return reference(5)(params, demo)
+        return student_copy(5)(params, demo)
     assert "changed its argument `params` in place" in message(5, imitation_loss)
     assert "expected a function" in message(5, 3.0)
 
 
 def test_a_near_miss_shows_the_digits_that_differ_and_no_relation_that_is_not_there():
-    text = message(9, lambda s, n, z=1.96: tuple(v * (1 + 2e-6) for v in reference(9)(s, n, z)))
+    text = message(9, lambda s, n, z=1.96: tuple(v * (1 + 2e-6) for v in student_copy(9)(s, n, z)))
     got, want = re.search(r"is (\S+); expected (\S+) ", text).groups()
     assert got != want and "relative difference of 2.0e-06" in text and "times the expected" not in text, text
-    in_float32 = lambda *a: tuple(v.astype(np.float32) for v in reference(10)(*(x.astype(np.float32) for x in a)))
+    in_float32 = lambda *a: tuple(v.astype(np.float32) for v in student_copy(10)(*(x.astype(np.float32) for x in a)))
     text = message(10, in_float32)                         # a 1 x 1 array is its own transpose
     assert "transpose" not in text and "relative difference" in text, text
     symmetric, out = np.array([[2.0, 1.0], [1.0, 3.0]]), Out("array", "your M")
@@ -248,8 +263,8 @@ def test_a_near_miss_shows_the_digits_that_differ_and_no_relation_that_is_not_th
 
 
 def test_exercise_8_keeps_a_float_dtype_as_well_as_an_integer_one():
-    widen = lambda images, demo_images: reference(8)(images, demo_images).astype(np.float64)
-    floats_only = lambda images, demo_images: (widen if images.dtype.kind == "f" else reference(8))(images, demo_images)
+    widen = lambda images, demo_images: student_copy(8)(images, demo_images).astype(np.float64)
+    floats_only = lambda images, demo_images: (widen if images.dtype.kind == "f" else student_copy(8))(images, demo_images)
     assert "has dtype float64; expected float32, the inputs' own dtype" in message(8, floats_only)
     assert "has dtype float64; expected uint8" in message(8, widen)
 
@@ -368,7 +383,7 @@ def test_notebooks_run_as_stubs_and_with_the_solutions_filled_in(filled, capsys)
             source = "".join(cell["source"])
             if tags and filled:
                 number = int(tags[0].removeprefix("exercise-"))
-                source = f"from oneshot.exercises import reference\n{EXERCISES[number].name} = reference({number})"
+                source = solution_source(number)
             if cell["cell_type"] == "code":
                 exec(compile(source, f"<{path.name}>", "exec"), namespace)
     verdicts = [line for line in capsys.readouterr().out.splitlines() if line.startswith("exercise ")]

@@ -316,13 +316,14 @@ def test_exercise_notebook_with_the_reference_solutions(path, tmp_path):
         if e.name != "oneshot.exercises":
             raise
         pytest.skip("oneshot.exercises (the reference solutions) cannot be imported: it does not exist")
+    from helpers import solution_source                  # it imports oneshot.exercises
     nb = nbformat.read(path, as_version=4)
     solved = {}                                          # exercise number -> the function's name
     for cell in nb.cells:
         n = exercise_number(cell) if cell.cell_type == "code" else None
         if n is not None:
             solved[n] = exercises.EXERCISES[n].name
-            cell.source = f"from oneshot.exercises import reference\n{solved[n]} = reference({n})"
+            cell.source = solution_source(n)             # typed in, as a student would: reference(n) is flagged
     assert solved, f"{path.name}: no code cell is tagged exercise-N"
     # The notebook's own check cells run on the solutions; then the test asks the checker itself.
     nb.cells.append(added_cell("from oneshot.exercises import check"))

@@ -32,6 +32,8 @@ from oneshot.exercises.checking import Exercise, Result, run
 from oneshot.exercises.solutions import SOLUTIONS
 
 CHECKERS = {**checks_world.CHECKERS, **checks_network.CHECKERS, **checks_maml.CHECKERS, **checks_baselines.CHECKERS}
+ANSWERS = tuple(f for n in sorted(CHECKERS) for f in CHECKERS[n].package) + tuple(SOLUTIONS.values())
+#         every function that computes an answer: a submission may not call them (`poison`)
 
 __all__ = ["EXERCISES", "Exercise", "Result", "check", "reference"]
 
@@ -45,8 +47,10 @@ def _exercise(number):
 def check(number, function, quiet=False):
     """Check the student's `function` for exercise `number`: print the verdict (unless quiet) and return
     a Result (passed: bool, message: "correct" or the first difference in words). Never raises on the
-    student's account: a function that raises or returns the wrong shape is reported in words."""
-    result = run(_exercise(number), CHECKERS[number], function)
+    student's account: a function that raises or returns the wrong shape is reported in words. A
+    function that is, or calls, the package's own answer (`reference(n)` among them) is flagged, as
+    the grader flags it (`poison.watching`)."""
+    result = run(_exercise(number), CHECKERS[number], function, answers=ANSWERS)
     if not quiet:
         print(result.line)
     return result

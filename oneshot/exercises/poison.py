@@ -15,6 +15,7 @@ Swapping the code object, not the module attribute, trips every alias: `from ...
 one that deliberately digs the originals out of this process's memory (any code in a process can), and
 the grader trusts nothing this process says: it judges the values that come back (`grading`).
 """
+import contextlib
 import gc
 import os
 import sys
@@ -23,7 +24,7 @@ import types
 
 ALLOWED = ("oneshot.policy.network",)       # modules whose functions a submission may call: entry points
 tripped = []                                # names of the answers a submission called, newest last
-_state = {"originals": {}, "names": {}, "entries": set(), "boundary": None, "trusted": (), "seen": {}}
+_state = {"originals": {}, "names": {}, "entries": set(), "boundary": None, "trusted": (), "seen": {}, "watched": {}}
 
 
 class PackageUsed(BaseException):
@@ -61,20 +62,27 @@ def _is_trusted(filename):
     return seen[filename]
 
 
-def trip(key, args, kwargs):
-    """What a tripwire does (called by the swapped code): run the original, unless a submission's frame
-    (or `submission`'s wrapper) called it with no `ALLOWED` function between: then raise PackageUsed.
-    Reaching the checker's boundary without one means the checker called it (autograd's backward pass)."""
-    frame = sys._getframe(2)                    # 0: here, 1: the tripwire, 2: its caller
+def _by_submission(frame):
+    """Did a submission's frame (or `submission`'s wrapper) make this call, `frame` being the caller's,
+    with no `ALLOWED` function between? Reaching the checker's boundary without one means the checker
+    made it (autograd's backward pass, say); a thread a submission started has no boundary above it."""
     while frame is not None:
         code = frame.f_code
         if code in _state["entries"] or code is _state["boundary"]:
-            return _state["originals"][key](*args, **kwargs)
+            return False
         if code is _SUBMITTED or not _is_trusted(code.co_filename):
-            break                               # a submission's frame (a file of its own, or exec'd text)
+            return True                         # a submission's frame (a file of its own, or exec'd text)
         frame = frame.f_back
+    return True
+
+
+def trip(key, args, kwargs):
+    """What a tripwire does (called by the swapped code): run the original, unless a submission called
+    it (`_by_submission`): then raise PackageUsed."""
+    if not _by_submission(sys._getframe(2)):   # 0: here, 1: the tripwire, 2: its caller
+        return _state["originals"][key](*args, **kwargs)
     tripped.append(_state["names"][key])
-    raise PackageUsed(_state["names"][key])     # a submission's frame, or a thread it started
+    raise PackageUsed(_state["names"][key])
 
 
 def _modules_of(functions):
@@ -82,10 +90,9 @@ def _modules_of(functions):
             if f.__module__ not in ALLOWED} - {None}
 
 
-def arm(functions, boundary):
-    """Swap the code of `functions`, and of every closure-free function defined in their modules'
-    files (not ALLOWED modules'), for tripwires. `boundary`: the code object of the sandbox's function
-    that calls the student's (its frame marks "called by the checker, not by the submission")."""
+def _targets(functions, boundary):
+    """The answers: `functions` and every closure-free function defined in their modules' files (not
+    ALLOWED modules'); and the rule's state: the boundary, the trusted folders, the ALLOWED entries."""
     files = {os.path.realpath(f) for f in _modules_of(functions)}
     explicit = {id(f) for f in functions}
     targets = [f for f in gc.get_objects() if type(f) is types.FunctionType and f.__closure__ is None and
@@ -94,6 +101,36 @@ def arm(functions, boundary):
     for module in ALLOWED:
         _state["entries"] |= {f.__code__ for f in vars(sys.modules[module]).values() if type(f) is
                               types.FunctionType and f.__module__ == module and id(f) not in explicit}
+    return targets
+
+
+@contextlib.contextmanager
+def watching(functions, boundary):
+    """The tripwires' rule in the student's own process (a notebook's `check`), where nothing may stay
+    swapped: while the block runs, a profile hook adds to `tripped` the name of every answer (as `arm`
+    finds them) that a submission called. It only records: the answer runs, and `check` says "flagged"
+    as the grader would."""
+    key = (tuple(map(id, functions)), boundary)               # found once: gc.get_objects takes a while
+    if key not in _state["watched"]:
+        _state["watched"][key] = {f.__code__: f"{f.__module__}.{f.__qualname__}" for f in _targets(functions, boundary)}
+    names = _state["watched"][key]
+
+    def hook(frame, event, arg):
+        if event == "call" and frame.f_code in names and _by_submission(frame.f_back):
+            tripped.append(names[frame.f_code])
+    previous = sys.getprofile()
+    sys.setprofile(hook)
+    try:
+        yield
+    finally:
+        sys.setprofile(previous)
+
+
+def arm(functions, boundary):
+    """Swap the code of the answers (`_targets`: `functions` and their modules' functions) for
+    tripwires. `boundary`: the code object of the sandbox's function that calls the student's (its
+    frame marks "called by the checker, not by the submission")."""
+    targets = _targets(functions, boundary)
     for key, f in enumerate(targets):
         original = types.FunctionType(f.__code__, f.__globals__, f.__name__, f.__defaults__, f.__closure__)
         original.__kwdefaults__ = f.__kwdefaults__
