@@ -10,6 +10,7 @@ from autograd.test_util import check_grads
 from helpers import make_demo, make_mlp, mlp_loss
 from oneshot.maml import batched
 from oneshot.maml.batched import value_and_grads
+from oneshot.maml.inner import InnerLoop
 
 
 # ----- value_and_grads: autograd's value_and_grad for a dict of arrays, one root per array -----
@@ -67,3 +68,14 @@ def test_packed_reduce_equals_reducing_each_array_to_second_order():
     for k in arrays:
         np.testing.assert_allclose(g_packed[k], g_each[k], rtol=1e-13)
     check_grads(packed, modes=["rev"], order=2)(arrays)
+
+
+def test_the_inner_clip_acts_after_the_reduce_over_processes():
+    """theta' = theta - alpha clip(reduce(g)): with reduce = 3 g (three processes' equal parts) and clip
+    0.5, an element whose part is 0.3 moves by alpha * 0.5; clipping each part first would move it by
+    alpha * 0.9. By hand, on a loss linear in w (gradient d whatever w)."""
+    d = np.array([[0.3, -0.05, 0.1], [-0.4, 0.2, 0.01]])                     # 2 tasks
+    loss_tasks = lambda p, demos: anp.sum(demos * p["w"])
+    adapted = batched.adapt_batch({"w": np.zeros(3)}, d, loss_tasks, InnerLoop(alpha=0.1, steps=1, clip=0.5),
+                                  reduce=lambda v: 3.0 * v)
+    np.testing.assert_allclose(adapted["w"], -0.1 * np.clip(3.0 * d, -0.5, 0.5), rtol=1e-15)

@@ -18,6 +18,7 @@ from oneshot.experiments import __main__ as command, fig2, folders, lines, parts
 from oneshot.experiments import sweep as sweeping
 from oneshot.training.scoring import wilson_interval
 from oneshot.experiments.fig2 import PROFILES, plan, run_context
+from oneshot.experiments.lines import LINES
 from oneshot.training import checkpoint, run_data, run_folder
 from oneshot.experiments import stats, summary
 from oneshot.experiments.summary import plot, summarise
@@ -110,6 +111,18 @@ def test_each_profile_with_committed_results_still_plans_their_lines(summary_pat
     assert [list(s) for s in cfg.sizes] == committed["config"]["sizes"]
     assert list(cfg.seeds) == committed["config"]["seeds"]
     folders.check_results_folder(cfg, os.path.dirname(summary_path))     # its own command may write there
+
+
+@pytest.mark.parametrize("summary_path", COMMITTED, ids=lambda p: os.path.basename(os.path.dirname(p)))
+def test_each_committed_summary_is_its_runs_csv_summarised_again(summary_path):
+    """Every published rate, interval and paired difference is what `summarise` computes from the committed
+    rows today: the bootstrap's seeded stream (stats.METHOD), its percentiles, the mean over seeds and
+    the pairs' order are all pinned by the numbers the README and docs quote."""
+    rows, committed = fig2.load_results(os.path.dirname(summary_path))
+    lines = [m for m in committed["config"]["methods"] if m in LINES]
+    again = json.loads(json.dumps(summarise(rows, None, None, command._pairs(lines))))
+    assert again["methods"] == committed["methods"]
+    assert again["differences"] == committed["differences"]
 
 
 def test_committed_results_are_found():
@@ -717,3 +730,43 @@ def test_the_every_parameter_policy_is_the_ablations_run_of_its_chosen_line():
     assert ckpt["config"].inner_params == "all" and ckpt["iteration"] == spec.iterations
     assert ckpt["ema"] is not None and not ckpt["ln_offsets_drawn"]
     assert os.path.getsize(path) < 2_000_000
+
+
+def test_a_points_rate_is_the_mean_of_its_seeds_rates_not_the_pooled_rate():
+    """Seed A 1 of 2, seed B 30 of 40: the mean over seeds is (0.5 + 0.75) / 2 = 0.625; pooling the
+    trials (mutant S04) gives 31 / 42 = 0.738."""
+    mean, _, _ = stats.interval(np.array([[1], [30]]), np.array([[2], [40]]))
+    assert mean == pytest.approx(0.625, abs=1e-15)
+    d, _, _ = stats.difference_interval((np.array([[1], [30]]), np.array([[2], [40]])), (np.array([[0]]), np.array([[1]])))
+    assert d == pytest.approx(0.625, abs=1e-15)
+
+
+def test_the_difference_interval_is_the_2_5_and_97_5_percentiles():
+    """a: 3 seeds scoring 0, 1, 1 (one colour, one trial); b: one seed scoring 1. A replicate's difference is
+    the mean of 3 seed draws of a, minus 1: -1 with probability (1/3)^3 = 3.7%, -2/3 with 22%, ...,
+    0 with (2/3)^3 = 30%. 3.7% > 2.5%, so the low end is -1; the 5th percentile (mutant S05) would be -2/3."""
+    a = (np.array([[0], [1], [1]]), np.ones((3, 1), int))
+    b = (np.array([[1]]), np.ones((1, 1), int))
+    d, lo, hi = stats.difference_interval(a, b)
+    assert (d, lo, hi) == (pytest.approx(-1 / 3), -1.0, 0.0)
+
+
+def _row(method, seed, successes, trials=8):
+    return {"method": method, "size": 9, "colours": 3, "demos_per_colour": 3, "seed": seed, "iterations": 2,
+            "successes": successes, "trials": trials}
+
+
+def test_a_summarys_paired_difference_is_a_minus_b():
+    rows = [_row("good", 0, 8), _row("good", 1, 6), _row("bad", 0, 2), _row("bad", 1, 0)]
+    (diff,) = summary.summarise(rows, pairs=[("good", "bad")])["differences"]
+    assert (diff["a"], diff["b"]) == ("good", "bad")
+    assert diff["difference"] == pytest.approx((1.0 + 0.75) / 2 - (0.25 + 0.0) / 2)   # +0.75, not -0.75 (mutant S10)
+    assert diff["ci_low"] > 0
+
+
+def test_a_reproduction_with_identical_numbers_agrees():
+    """One seed each, the same counts: the difference is exactly 0 with interval [0, 0], which holds 0
+    (mutant S11, strict inequalities, said they disagree)."""
+    rows = [_row("mil", 0, 5)]
+    (point,) = summary.compare(rows, [dict(r) for r in rows])
+    assert (point["difference"], point["ci_low"], point["ci_high"]) == (0.0, 0.0, 0.0) and point["agree"] is True

@@ -1,6 +1,8 @@
 """Section III on the real network: eq. (2), the batched meta-objective, and second-order MAML,
 against independent references (per-task loops and finite differences)."""
 import colorsys
+import dataclasses
+import types
 
 import numpy as np
 import pytest
@@ -219,3 +221,24 @@ def test_the_other_colour_demo_is_the_colour_farthest_in_hue():
     assert len(one_hue) > 1 and all(j != i for i, j in enumerate(imitation.farthest_hue_tasks(one_hue, cfg)))
     with pytest.raises(ValueError, match="another task needs 2 tasks or more; got 1"):
         imitation.farthest_hue_tasks(colours[:1], cfg)
+
+
+def _one_colour_dataset(k=1, T=20):
+    world = WorldConfig(split="validation")
+    meta = {"split": "validation", "world": dataclasses.asdict(world)}
+    colour = int(palette.split_colours("validation")[0])
+    return {"metadata": meta, "images": np.zeros((1, k, T, 32, 32, 3), np.uint8),
+            "states": np.zeros((1, k, T, 6), np.float32), "actions": np.zeros((1, k, T, 2), np.float32),
+            "task_colours": np.array([colour]), "seeds": np.zeros((1, k), np.int64)}
+
+
+def test_failures_next_to_the_target_count_as_near_misses_not_as_a_distractor(monkeypatch):
+    """Two failed trials that end 0.08 m from the target (the distractors 0.3 m away): both near misses."""
+    positions = np.array([[0.2, 0.0], [-0.2, 0.1], [0.0, 0.3]])         # the target is object 0
+
+    def rollout(policy, world, seed, colour):
+        ee = np.tile(positions[0] + [0.0, 0.08], (20, 1))
+        return {"success": False, "end_effector": ee, "scene": types.SimpleNamespace(target=0, positions=positions)}
+    monkeypatch.setattr(imitation, "rollout", rollout)
+    r = imitation.one_shot_success(lambda demo: None, _one_colour_dataset(), 2, progress=False)
+    assert r["successes"] == 0 and r["failures"] == {"near_miss": 2, "wrong_object": 0}

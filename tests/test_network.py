@@ -378,3 +378,12 @@ def test_layer_norm_second_order_gradients_and_what_it_normalises():
     offsets = np.arange(4 * 6).reshape(4, 6) / 10.0                 # per task: (B, C) for x's leading axis B = 4
     np.testing.assert_allclose(layer_norm(x, offsets) - y, np.broadcast_to(offsets[:, None, None, None, :], x.shape),
                                atol=1e-12)
+
+
+def test_layer_norm_variance_floor_is_1e_minus_6():
+    """A map of variance 1e-6 normalises to variance 1e-6 / (1e-6 + LN_EPSILON) = 0.5 (hand computation)."""
+    z = np.random.default_rng(0).normal(size=(2, 4, 4, 3))
+    z = (z - z.mean(axis=(1, 2, 3), keepdims=True)) / z.std(axis=(1, 2, 3), keepdims=True)
+    y = layer_norm(5.0 + 1e-3 * z, np.zeros(3))
+    np.testing.assert_allclose(y.var(axis=(1, 2, 3)), 0.5, rtol=1e-6)
+    np.testing.assert_allclose(y, z / np.sqrt(2.0), rtol=1e-6, atol=1e-9)

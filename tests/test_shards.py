@@ -178,3 +178,18 @@ def _alive(pid):
             return True
         except ProcessLookupError:
             return False
+
+
+def test_frame_shards_clip_the_summed_inner_gradient_not_each_part(rng):
+    """The released code's inner clip acts on the whole inner gradient: with frame shards, on the sum of
+    the processes' parts. Clipping each part before the sum gives other numbers whenever the clip binds,
+    and it binds here (the clipped meta-gradient is not the unclipped one)."""
+    settings, params, adapt, evaluate = _setup(rng, inner_params="all", inner_steps=2, alpha=0.05, inner_clip=0.02)
+    one = shards.meta_gradient(params, adapt, evaluate, settings)
+    unclipped = shards.meta_gradient(params, adapt, evaluate, (settings[0], dataclasses.replace(settings[1], clip=0.0)))
+    assert any(not np.allclose(one[1][k], unclipped[1][k]) for k in params)
+    with shards.make_pool(2) as pool:
+        split = shards.meta_gradient(params, adapt, evaluate, settings, 2, pool)
+    assert split[0] == pytest.approx(float(one[0]), rel=1e-12)
+    for k in params:
+        np.testing.assert_allclose(split[1][k], one[1][k], rtol=1e-10, atol=1e-13, err_msg=k)

@@ -496,3 +496,59 @@ def test_evaluate_scores_the_test_colours_on_test_scenes_and_names_the_split(tin
     with pytest.raises(datasets.DatasetError, match="holds validation colours, not test colours"):
         evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--split", "test", "--test", tiny.validation_data,
                        "--train", ""])
+
+
+def test_update_ema_weights_the_old_average_by_the_decay():
+    """ema <- decay ema + (1 - decay) params: with decay 0.9, from 0 towards 1, 0.1 (not 0.9: mutant T01,
+    which decay 0.5 in the suite cannot tell apart)."""
+    out = loop.update_ema({"w": np.zeros(3, np.float32)}, {"w": np.ones(3, np.float32)}, 0.9)
+    np.testing.assert_allclose(out["w"], 0.1, rtol=1e-6)
+    assert out["w"].dtype == np.float32
+
+
+class _StubMethod:
+    """A method whose meta-gradient is given; it records what the validation check conditions on."""
+    def __init__(self, grads):
+        self.grads, self.conditioned = grads, []
+
+    def meta_gradient(self, params, adapt, evaluate, pool):
+        return 1.0, {k: np.full_like(v, self.grads) for k, v in params.items()}
+
+    def conditioner(self, params, seed):
+        self.conditioned.append(params)
+        return lambda demo: params
+
+
+def _stub_run(monkeypatch, grads, **cfg_fields):
+    cfg = dataclasses.replace(config.TrainConfig(), meta_batch=1, iterations=2, log_every=1, lr=1e-3,
+                              lr_schedule="constant", **cfg_fields)
+    params = {"w": np.zeros(3, np.float32)}
+    rng = np.random.default_rng(0)
+    state = loop.State(params, optim.adam_init(params), dict(params) if cfg.ema else None, 0, rng.bit_generator.state)
+    demos = (np.zeros((2, 2, 1, 8, 8, 3), np.float32), np.zeros((2, 2, 1, 6), np.float32), np.zeros((2, 2, 1, 2), np.float32))
+    monkeypatch.setattr(imitation, "one_shot_success", lambda *a, **k: {"rate": 0.0, "trials": 1})
+    seen = []
+    real_adam = optim.adam_step
+    monkeypatch.setattr(optim, "adam_step", lambda p, g, s, lr: seen.append(g) or real_adam(p, g, s, lr))
+    method = _StubMethod(grads)
+    states = [s for s, _ in loop.steps(method, cfg, state, demos, validation=object())]
+    return method, states, seen
+
+
+def test_the_validation_check_during_training_scores_the_moving_average(monkeypatch):
+    """With a moving average, the policy that acts is the average (checkpoint.policy_params): so must the
+    validation check's be (mutant T07 scored the raw parameters)."""
+    method, states, _ = _stub_run(monkeypatch, 0.5, ema=0.9, eval_every=1, eval_trials=1, clip=10.0)
+    assert len(method.conditioned) == 2
+    for s, conditioned in zip(states, method.conditioned):
+        assert not np.array_equal(s.ema["w"], s.params["w"])
+        assert conditioned is s.ema
+
+
+def test_adam_receives_the_meta_gradient_clipped_to_cfg_clip(monkeypatch):
+    """MIL clips the meta-gradient to [-10, 10] before Adam (mutant T10 skipped the clip: Adam's first
+    step hides it, being invariant to the gradient's scale, so check what Adam is given)."""
+    _, _, seen = _stub_run(monkeypatch, 1e3, ema=0.0, eval_every=0, clip=10.0)
+    assert len(seen) == 2 and all(np.all(g["w"] == 10.0) for g in seen)
+    _, _, seen = _stub_run(monkeypatch, 1e3, ema=0.0, eval_every=0, clip=0.0)      # 0: off
+    assert all(np.all(g["w"] == 1e3) for g in seen)

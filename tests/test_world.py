@@ -245,3 +245,13 @@ def test_a_palette_of_no_hues_is_refused(size):
     one_line_error(lambda: palette.PaletteConfig(size=size), "palette needs whole numbers size >= 1|palette size must "
                                                              "be an int; got 2.5")
     assert type(palette.PaletteConfig(size=np.int64(48)).size) is int        # a plain int, as JSON saves it
+
+
+def test_success_radius_is_0_05_m_a_point_just_beyond_it_fails():
+    target = np.array([0.1, 0.0])
+    far = np.tile([0.0, 0.15], (20, 1))
+    beyond = far.copy()
+    beyond[-1] = [0.1, 0.0501]                     # 0.0501 m away, in the final fifth
+    assert not is_success(beyond, target)          # default radius is the paper's 0.05 (mutant W04: 0.06)
+    assert not is_success(beyond, target, WorldConfig().success_radius)
+    assert is_success(beyond, target, 0.06)        # ... and the radius argument is what decides

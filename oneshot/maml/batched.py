@@ -59,8 +59,10 @@ def adapt_batch(params, adapt, loss_tasks, inner, reduce=None):
     loss_tasks(params_b, demos) -> scalar: the SUM over tasks of eq. (2), where an array of params_b
         may have a leading task axis of size B.
     inner: `inner.InnerLoop`, every option of eq. (1); parameters that do not adapt stay shared.
-    reduce: as in `inner_update` (`oneshot.maml.shards`), a function that acts element by element (the
-        arrays of each inner gradient go through it together, packed into one vector: `_reduced`).
+    reduce: None, or a function applied to every inner gradient before the clip and the step
+        (`oneshot.maml.shards`: the sum over processes of their frames' parts, since eq. (2) sums over
+        frames); it acts element by element, and the arrays of each inner gradient go through it
+        together, packed into one vector (`_reduced`).
     Returns the adapted parameters: a dict like params, each adapted array with a task axis (B, ...).
     """
     B = _batch_size(adapt)

@@ -177,7 +177,7 @@ def gradient(f, theta):
 
 
 def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False, only=None, frozen=(), clip=0.0,
-                 loss_scale=1.0, *, gradient=gradient, reduce=None):
+                 loss_scale=1.0, *, gradient=gradient):
     """Adapt parameters to one demo by gradient descent: paper eq. (1), repeated `steps` times.
 
         theta' = theta - alpha * grad_theta L(theta, demo)
@@ -192,9 +192,9 @@ def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False,
     clip: each inner gradient element clipped to [-clip, clip] before the step (0: off).
     loss_scale: the inner loss is loss_scale x loss_fn (the released code's loss convention, `InnerLoop`).
     gradient(f, theta) -> df/dtheta: autograd's `grad`, or the batched path's faster route to the same
-        numbers (`batched.adapt_batch`, which also gives every task its own copy of the parameters).
-    reduce: None, or a function applied to every inner gradient before the step (`oneshot.maml.shards`:
-        the sum over processes of their frames' parts, since eq. (2) sums over frames).
+        numbers (`batched.adapt_batch`, which also gives every task its own copy of the parameters, and
+        with frame shards sums the processes' parts: `oneshot.maml.shards`). The clip acts on what it
+        returns, the whole inner gradient.
     Returns a new dict with the model's keys (learnt step sizes dropped), differentiable to any order
     with respect to `params` (first_order=False).
     """
@@ -206,8 +206,6 @@ def inner_update(params, demo, loss_fn, alpha=0.001, steps=3, first_order=False,
         # first order: the gradient is taken at constants, cut from the outer graph
         at, shared = (constant(theta), constant(fixed)) if o.first_order else (theta, fixed)
         g = gradient(lambda th: loss({**shared, **th}, demo), at)
-        if reduce is not None:
-            g = {k: reduce(v) for k, v in g.items()}
         if o.clip:
             g = {k: np.clip(v, -o.clip, o.clip) for k, v in g.items()}
         theta = {k: step(theta[k], g[k], step_size[k]) for k in theta}         # eq. (1)
