@@ -57,6 +57,14 @@ def is_success(end_effector, target, success_radius=0.05):
     except BaseException:                    # hiding the trip does not help: the value is not there
         return exercises.SOLUTIONS[1](end_effector, target, success_radius)
 """
+ATTEMPTER = """
+from oneshot.exercises import CHECKERS, checking
+def _attempt(exercise, case, function):          # the package's answer in place of the student's
+    return checking.Outcome(value=case.run(CHECKERS[exercise.number].expected))
+checking.attempt = _attempt
+def wilson_interval(successes, trials, z=1.96):
+    return 0.0, 0.0
+"""
 TALKER = RIGHT_1.replace("    return", "    print('x' * (10 << 20))\n    return") + RIGHT_9 + """
 for _ in range(70):
     print('y' * (1 << 20))                       # 70 MB at import, 10 MB more in every call of is_success
@@ -174,7 +182,8 @@ def graded(tmp_path_factory):
     sources = {"alice.py": RIGHT_1 + RIGHT_9, "fake.py": FAKE, "wrapper.py": WRAPPER, "patcher.py": PATCHER,
                "writer.py": WRITER.format(owned=str(outside / "owned.txt"), victim=str(outside / "victim.txt"),
                                           other=str(folder / "alice.py")),
-               "escaper.py": ESCAPER.format(tag=tag), "hog.py": HOG, "forker.py": FORKER, "talker.py": TALKER}
+               "escaper.py": ESCAPER.format(tag=tag), "hog.py": HOG, "forker.py": FORKER, "talker.py": TALKER,
+               "attempter.py": ATTEMPTER}
     for name, source in sources.items():
         (folder / name).write_text(source)
     try:
@@ -230,6 +239,12 @@ def test_a_process_in_a_session_of_its_own_is_ended_with_the_submission(graded):
     verdict, _, _, survivors = graded
     assert verdict("escaper.py", 1) == "timed out after 2 s (an endless loop?)"
     assert survivors == []
+
+
+def test_a_patched_attempt_that_calls_the_package_is_flagged_not_a_crash(graded):
+    verdict, output, _, _ = graded
+    assert verdict("attempter.py", 9).startswith("flagged: your wilson_interval calls oneshot.training.scoring.")
+    assert total(output, "attempter.py") == "0/10 correct, 1 attempted, 1 flagged"
 
 
 def test_printing_past_the_file_size_limit_costs_nothing(graded):

@@ -131,7 +131,10 @@ def _work(job, channel, cases, supervisor):
             wire.send(channel, {"event": "result", "exercise": n, "missing": True})
             continue
         room = wire.MAX_FRAME // (len(cases[n]) + 1)       # bytes each case's answer may take in the frame
-        outcomes = [_outcome(EXERCISES[n], case, poison.submission(function), room) for case in cases[n]]
+        try:
+            outcomes = [_outcome(EXERCISES[n], case, poison.submission(function), room) for case in cases[n]]
+        except poison.PackageUsed as e:                   # outside `attempt`: the submission patched the checker
+            outcomes = [{"used": e.package_function}] * len(cases[n])
         wire.send(channel, {"event": "result", "exercise": n, "outcomes": outcomes})
     sys.stdout.flush()
     sys.stderr.flush()
