@@ -1,4 +1,5 @@
-"""Tripwires: in the sandbox, the package's own answers refuse to work for a submission.
+"""Tripwires: in the sandbox, the package's own answers refuse to work for a submission (`arm`); in a
+notebook, `check` watches for them instead and flags them the same way (`watching`).
 
 A submission that wraps `oneshot.exercises.reference(5)`, or the package's `imitation_loss` or
 `inner_update`, would otherwise be graded correct. Before a submission loads, `arm` swaps the code of
@@ -113,7 +114,7 @@ def watching(functions, boundary):
     key = (tuple(map(id, functions)), boundary)               # found once: gc.get_objects takes a while
     if key not in _state["watched"]:
         _state["watched"][key] = {f.__code__: f"{f.__module__}.{f.__qualname__}" for f in _targets(functions, boundary)}
-    names = _state["watched"][key]
+    names, _state["boundary"] = _state["watched"][key], boundary
 
     def hook(frame, event, arg):
         if event == "call" and frame.f_code in names and _by_submission(frame.f_back):
