@@ -3,9 +3,12 @@ mistake in answers a student could write (written here, not taken from the check
 functions that raise, return the wrong shape or change their inputs are reported, not crashed on; the
 command line checks a file and grades a folder with a timeout; the notebooks follow the convention
 their test relies on (tag `exercise-N` on the stub cell) and run both as stubs and with solutions."""
+import concurrent.futures
 import dataclasses
 import json
 import re
+import sys
+import threading
 from pathlib import Path
 
 import autograd.numpy as anp
@@ -48,7 +51,26 @@ def test_check_flags_the_package_answers_as_the_grader_does(number):
         result = check(number, function, quiet=True)
         assert not result.passed and result.flagged, result.message
         assert re.search(r"calls oneshot\.[\w.]+, the package's own \(on .*\): write your own$", result.message)
-    assert check(number, student_copy(number), quiet=True).passed    # and it stays armed nowhere
+    assert check(number, student_copy(number), quiet=True).passed and sys.getprofile() is None
+
+
+def test_check_watches_threads_leaves_no_hook_and_stands_aside_for_a_profiler():
+    def in_a_thread(successes, trials, z=1.96):
+        with concurrent.futures.ThreadPoolExecutor(1) as pool:
+            return pool.submit(reference(9), successes, trials, z).result()
+    assert "calls oneshot.exercises.solutions.wilson_interval" in message(9, in_a_thread)
+
+    def raises(*args):
+        raise ValueError("no")
+    assert "raised ValueError" in message(9, raises)
+    assert sys.getprofile() is None and threading.getprofile() is None
+    profiler = lambda frame, event, arg: None        # the user's own (cProfile's is not even callable)
+    sys.setprofile(profiler)
+    try:
+        assert check(9, student_copy(9), quiet=True).passed
+        assert sys.getprofile() is profiler
+    finally:
+        sys.setprofile(None)
 
 
 def test_exercises_are_small_frozen_records_numbered_1_to_10():

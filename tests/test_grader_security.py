@@ -20,6 +20,7 @@ import pytest
 import oneshot
 from helpers import RIGHT_1, RIGHT_9
 from oneshot.exercises import __main__ as cli_main
+from oneshot.exercises import worker
 
 ROOT = str(Path(oneshot.__file__).resolve().parent.parent)
 ENV = {**os.environ, "PYTHONPATH": ROOT}
@@ -65,7 +66,8 @@ checking.attempt = _attempt
 def wilson_interval(successes, trials, z=1.96):
     return 0.0, 0.0
 """
-TALKER = RIGHT_1.replace("    return", "    print('x' * (10 << 20))\n    return") + RIGHT_9 + """
+TALKER = "import faulthandler, sys\nsys.stdout.reconfigure(encoding='utf-8')\nfaulthandler.enable()\n" + \
+    RIGHT_1.replace("    return", "    print('x' * (10 << 20))\n    sys.stdout.buffer.write(b'y')\n    return") + RIGHT_9 + """
 for _ in range(70):
     print('y' * (1 << 20))                       # 70 MB at import, 10 MB more in every call of is_success
 """
@@ -339,3 +341,25 @@ def test_the_grader_reads_only_values_from_the_sandbox():
     with pytest.raises(wire.WireError):
         frames.feed(b"\xff\xff\xff\xff")               # a 4 GB frame is refused before it is read
     assert wire.clean("ok\x1b[2J\nalice.py  1  correct") == "ok?[2J?alice.py  1  correct"
+
+
+def test_the_log_keeps_its_newest_megabyte_and_is_a_real_text_stream(tmp_path):
+    """The worker's sys.stdout and sys.stderr: never past its limit (the sandbox's 64 MB file-size limit
+    made print() raise), the newest line at its end (a crash's last line, which the grader shows), and
+    a text stream as Python's own is: encoding, buffer, fileno, reconfigure, a TypeError for bytes."""
+    with open(tmp_path / "log", "w+b") as log:
+        stream = worker.log_stream(log.fileno(), limit=1000)
+        for i in range(2000):
+            print(f"line {i}", file=stream)
+        stream.flush()                               # text, then bytes: in order once flushed, as for sys.stdout
+        stream.buffer.write(b"bytes\n")
+        stream.reconfigure(encoding="utf-8")
+        print("Traceback: the last line", file=stream)
+        stream.flush()
+        size = os.fstat(log.fileno()).st_size
+        log.seek(0)
+        text = log.read().decode()
+        assert stream.encoding == "utf-8" and stream.fileno() == log.fileno()
+        with pytest.raises(TypeError):
+            stream.write(b"not text")
+    assert 500 <= size <= 1000 and text.endswith("line 1999\nbytes\nTraceback: the last line\n")

@@ -255,3 +255,6 @@ def test_success_radius_is_0_05_m_a_point_just_beyond_it_fails():
     assert not is_success(beyond, target)          # default radius is the paper's 0.05 (mutant W04: 0.06)
     assert not is_success(beyond, target, WorldConfig().success_radius)
     assert is_success(beyond, target, 0.06)        # ... and the radius argument is what decides
+    within = far.copy()
+    within[-1] = [0.1, 0.049]
+    assert is_success(within, target)              # and not below 0.05 either

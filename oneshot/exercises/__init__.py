@@ -26,14 +26,14 @@ if _sys.argv[:1] == ["-m"] and not _sys.flags.safe_path and _sys.path[:1] == [_o
     del _sys.path[0]       # `python -m oneshot.exercises grade .` from a class's folder: a student's numpy.py
     #                        there must not be imported as NumPy by the grader (python -P does the same)
 
-from oneshot.exercises import checks_baselines, checks_maml, checks_network, checks_world
+from oneshot.exercises import checks_baselines, checks_maml, checks_network, checks_world, poison
 from oneshot.exercises.catalogue import EXERCISES
-from oneshot.exercises.checking import Exercise, Result, run
+from oneshot.exercises.checking import Exercise, Outcome, Result, attempt, run
 from oneshot.exercises.solutions import SOLUTIONS
 
 CHECKERS = {**checks_world.CHECKERS, **checks_network.CHECKERS, **checks_maml.CHECKERS, **checks_baselines.CHECKERS}
+# Every function that computes an answer: a submission may not call them (`poison`).
 ANSWERS = tuple(f for n in sorted(CHECKERS) for f in CHECKERS[n].package) + tuple(SOLUTIONS.values())
-#         every function that computes an answer: a submission may not call them (`poison`)
 
 __all__ = ["EXERCISES", "Exercise", "Result", "check", "reference"]
 
@@ -50,12 +50,22 @@ def check(number, function, quiet=False):
     student's account: a function that raises or returns the wrong shape is reported in words. A
     function that is, or calls, the package's own answer (`reference(n)` among them) is flagged, as
     the grader flags it (`poison.watching`)."""
-    result = run(_exercise(number), CHECKERS[number], function, answers=ANSWERS)
+    result = run(_exercise(number), CHECKERS[number], function, attempt=_watched_attempt)
     if not quiet:
         print(result.line)
     return result
 
 
+def _watched_attempt(exercise, case, function):
+    """`attempt`, the package's ANSWERS watched (`poison.watching`): its Outcome's `used` names the
+    first of them the function called, even if it caught what that raised."""
+    poison.tripped.clear()
+    with poison.watching(ANSWERS, attempt.__code__):
+        outcome = attempt(exercise, case, poison.submission(function))
+    return Outcome(used=poison.tripped[0]) if poison.tripped and not outcome.used else outcome
+
+
 def reference(number):
-    """The reference solution (a function) of exercise `number`."""
+    """The reference solution (a function) of exercise `number`, for teachers: `check` flags it, and a
+    function calling it, as the grader does; a student's copy of its code passes."""
     return SOLUTIONS[_exercise(number).number]

@@ -21,7 +21,6 @@ from typing import Callable
 
 import numpy as np
 
-from oneshot.exercises import poison
 from oneshot.exercises.compare import Difference, Out, compare, describe, part_of
 
 
@@ -217,18 +216,10 @@ def _diagnose(checker, cases, index, got, want, difference, outcome_of):
     return max(candidates, key=agreement)
 
 
-def _watched(exercise, case, function, answers):
-    """`attempt`, the package's `answers` watched (`poison.watching`): its Outcome's `used` names the
-    first of them the function called, even if it caught what that raised."""
-    poison.tripped.clear()
-    with poison.watching(answers, attempt.__code__):
-        outcome = attempt(exercise, case, poison.submission(function))
-    return Outcome(used=poison.tripped[0]) if poison.tripped and not outcome.used else outcome
-
-
-def run(exercise, checker, function, answers=()):
-    """Check `function` against the package on every case, in this process: `judge` of its `attempt`s.
-    answers: the package's functions it may not call (`oneshot.exercises.ANSWERS`), or () for none."""
+def run(exercise, checker, function, attempt=attempt):
+    """Check `function` against the package on every case, in this process: `judge` of its outcomes.
+    attempt(exercise, case, function) -> Outcome: `attempt`, or `check`'s, which also watches for the
+    package's answers (`oneshot.exercises`)."""
     if not callable(function):
         return Result(exercise.number, False, f"expected a function {exercise.name}({exercise.signature}); "
                                               f"got {describe(function)}", exercise.title)
@@ -238,8 +229,7 @@ def run(exercise, checker, function, answers=()):
 
         def outcome_of(index):                         # run the function only on the cases judge asks for
             if index not in outcomes:
-                outcomes[index] = (_watched(exercise, cases[index], function, answers) if answers else
-                                   attempt(exercise, cases[index], function))
+                outcomes[index] = attempt(exercise, cases[index], function)
             return outcomes[index]
         return judge(exercise, checker, outcome_of, cases)
 

@@ -34,6 +34,8 @@ def _through(eval_demo):
 
 
 def _inner_cases():
+    # loss_fn is `toy_loss`, of this module: a function of oneshot.maml (imitation_loss, say) would be one
+    # of the package's answers, and both the grader and `check` would flag an honest student who calls it.
     rng = np.random.default_rng(6)
     params = {"layer0_w": rng.normal(0, 0.7, (3, 5)), "layer0_b": rng.normal(0, 0.1, 5),
               "layer1_w": rng.normal(0, 0.7, (5, 2)), "layer1_b": rng.normal(0, 0.1, 2)}

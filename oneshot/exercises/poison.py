@@ -21,6 +21,7 @@ import gc
 import os
 import sys
 import sysconfig
+import threading
 import types
 
 ALLOWED = ("oneshot.policy.network",)       # modules whose functions a submission may call: entry points
@@ -109,8 +110,12 @@ def _targets(functions, boundary):
 def watching(functions, boundary):
     """The tripwires' rule in the student's own process (a notebook's `check`), where nothing may stay
     swapped: while the block runs, a profile hook adds to `tripped` the name of every answer (as `arm`
-    finds them) that a submission called. It only records: the answer runs, and `check` says "flagged"
-    as the grader would."""
+    finds them) that a submission called, in this thread and in threads it starts. It only records: the
+    answer runs, and `check` says "flagged" as the grader would. Under a profiler of the user's own
+    (cProfile, %prun) it watches nothing rather than switch that off."""
+    if sys.getprofile() is not None or threading.getprofile() is not None:
+        yield
+        return
     key = (tuple(map(id, functions)), boundary)               # found once: gc.get_objects takes a while
     if key not in _state["watched"]:
         _state["watched"][key] = {f.__code__: f"{f.__module__}.{f.__qualname__}" for f in _targets(functions, boundary)}
@@ -119,12 +124,13 @@ def watching(functions, boundary):
     def hook(frame, event, arg):
         if event == "call" and frame.f_code in names and _by_submission(frame.f_back):
             tripped.append(names[frame.f_code])
-    previous = sys.getprofile()
     sys.setprofile(hook)
+    threading.setprofile(hook)
     try:
         yield
     finally:
-        sys.setprofile(previous)
+        threading.setprofile(None)
+        sys.setprofile(None)
 
 
 def arm(functions, boundary):
@@ -141,6 +147,6 @@ def arm(functions, boundary):
                   f"    return __import__('sys').modules[{__name__!r}].trip({key}, args, kwargs)\n")
         namespace = {}
         exec(compile(source, f.__code__.co_filename, "exec"), namespace)
-        f.__code__ = namespace["tripwire"].__code__.replace(co_name=f.__code__.co_name,
-                                                            co_qualname=f.__code__.co_qualname)
+        names = {k: getattr(f.__code__, k) for k in ("co_name", "co_qualname") if hasattr(f.__code__, k)}
+        f.__code__ = namespace["tripwire"].__code__.replace(**names)      # co_qualname: Python 3.11+
     return len(targets)

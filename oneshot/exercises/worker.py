@@ -11,8 +11,8 @@
 2. The worker confines itself (`confine`: limits, Landlock, user nobody when root), arms the tripwires
    on the package's answers (`poison`), moves to the working copy, loads the submission, and for each
    exercise sends the OUTCOMES of the student's function on the cases (values, `wire`), never a verdict.
-   Its stdout and stderr go to a log the grader reads only for a crash's last line, kept to its
-   newest megabyte (`_Log`): printing costs a submission nothing.
+   Its sys.stdout and sys.stderr go to a log the grader reads only for a crash's last line, kept to
+   its newest megabyte (`log_stream`): print() never fails for lack of room.
 """
 import importlib.util
 import io
@@ -37,27 +37,47 @@ _NAMES = {exercise.name for exercise in EXERCISES.values()}
 LOG_BYTES = 1 << 20           # the log keeps at most this much of a submission's output: its newest
 
 
-class _Log(io.TextIOBase):
-    """The worker's sys.stdout and sys.stderr: text into the log (`fd`), which starts again from empty
-    whenever it would grow past `limit` bytes. So a submission that prints without end never reaches the
-    file-size limit (`confine.limit`: print() would raise OSError inside the student's function), and
-    the log's end, where the grader reads a crash's last line, is always the newest output."""
+class _Log(io.RawIOBase):
+    """The bytes the worker writes to the log (`fd`, opened for reading and writing), which keeps only
+    its newest half when it would grow past `limit` bytes. So a submission that prints without end
+    never reaches the file-size limit (`confine.limit`: print() would raise OSError inside the student's
+    function), and the log's end, where the grader reads a crash's last line, is the newest output,
+    after at least limit / 2 bytes of what came before it. `log_stream` makes it sys.stdout and
+    sys.stderr."""
 
     def __init__(self, fd, limit):
+        super().__init__()
         self.fd, self.limit = fd, limit
 
     def writable(self):
         return True
 
-    def write(self, text):
-        data = str(text).encode(errors="replace")[-self.limit:]
-        if os.lseek(self.fd, 0, os.SEEK_CUR) + len(data) > self.limit:
+    def fileno(self):
+        return self.fd
+
+    def write(self, data):
+        data = bytes(data)
+        kept, end = data[-self.limit:], os.lseek(self.fd, 0, os.SEEK_CUR)
+        if end + len(kept) > self.limit:
+            half = self.limit // 2
+            before = os.pread(self.fd, half, max(0, end - half))[max(0, len(kept) - half):]
             os.ftruncate(self.fd, 0)
             os.lseek(self.fd, 0, os.SEEK_SET)
+            self._write_all(before)
+        self._write_all(kept)
+        return len(data)
+
+    def _write_all(self, data):
         view = memoryview(data)
         while view:
             view = view[os.write(self.fd, view):]
-        return len(text)
+
+
+def log_stream(fd, limit=LOG_BYTES):
+    """A text stream like Python's own sys.stdout (encoding, buffer, fileno, reconfigure), buffered, over
+    a `_Log` of `fd`: what the worker's print() writes to."""
+    return io.TextIOWrapper(io.BufferedWriter(_Log(fd, limit), 1 << 16), encoding="utf-8",
+                            errors="backslashreplace", line_buffering=False, write_through=False)
 
 
 def _end(signum=None, frame=None):
@@ -96,6 +116,11 @@ def main(text):
         except BaseException:                            # its last line is what the grader shows
             traceback.print_exc()
         finally:
+            for stream in (sys.stdout, sys.stderr):      # buffered (`log_stream`): what it holds, to the log
+                try:
+                    stream.flush()
+                except BaseException:
+                    pass
             os._exit(status)
     _worker["pid"] = pid
     os.close(channel)
@@ -118,7 +143,7 @@ def _work(job, channel, cases, supervisor):
     os.closerange(3, channel)
     os.closerange(channel + 1, 1 << 16)
     sys.stdin = open(os.devnull)
-    sys.stdout = sys.stderr = _Log(2, LOG_BYTES)
+    sys.stdout = sys.stderr = log_stream(2)
     try:
         functions, notes = _load(job)
     except _LoadError as e:
@@ -181,7 +206,7 @@ def _load(job):
             name = os.path.basename(file)
             name = name[:-3] if name.endswith(".ipynb.py") else name
             defined = [n for n, value in vars(module).items() if n in _NAMES and callable(value)]
-            if isinstance(e, (SyntaxError, poison.PackageUsed)) or not defined:
+            if isinstance(e, poison.PackageUsed) or not defined:     # a parse error defines nothing
                 raise _LoadError(name, e) from None
             notes.append(f"{name} raised {checking.error_words(e)} as it loaded, after defining {', '.join(defined)}")
         for name, value in list(vars(module).items()):

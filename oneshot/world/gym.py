@@ -22,8 +22,8 @@ say which disc to reach; the goal does, as in Gymnasium-Robotics' goal-condition
 not their `desired_goal`: the goal is a colour, not a place the arm can be compared with.
 Action: (2,) joint torques in N m, float64, within +-0.5 N m (real numbers; larger ones are clipped).
 Reward: minus the end-effector-to-target distance in metres. An episode never terminates; it truncates
-after `horizon` steps (20, the spec's max_episode_steps), when info["success"] tells whether the end
-effector reached the target (paper Section IV).
+after `horizon` steps (20 unless `horizon=T`; no TimeLimit is registered), when info["success"] tells
+whether the end effector reached the target (paper Section IV).
 info: "success" bool, "target_colour" int (palette index), "target_position" (2,) m, "object_colours"
 (n,), "object_positions" (n, 2) m: plain values and fresh arrays, so Gymnasium can compare and stack them.
 """
@@ -81,7 +81,7 @@ def vector_env(num_envs=1, max_episode_steps=None, **kwargs):
     horizon = kwargs.get("horizon", WorldConfig().horizon)
     if max_episode_steps is not None and max_episode_steps != horizon:
         raise ValueError(f"max_episode_steps ({max_episode_steps}) must equal the horizon ({horizon}), where the "
-                         f"env truncates itself; pass both, e.g. horizon={horizon}, max_episode_steps={horizon}")
+                         f"env truncates itself; leave it out (horizon={horizon} alone is enough)")
     return gymnasium.vector.SyncVectorEnv([functools.partial(ReachEnv, **kwargs)] * num_envs)
 
 
