@@ -13,7 +13,7 @@ def check_results_folder(cfg, folder):
     """Raise ValueError if the results folder `folder` holds another sweep's results: runs.csv rows that
     are not runs of the profile `cfg` (the whole profile, not a part of it), or a summary of another
     profile. A folder holds one profile's results: its summary and figure would otherwise replace
-    another's, and `summarise` would pool both. (Its own rows scored otherwise, as the committed
+    another's, and `summarise` would pool both. (Its own rows scored otherwise, as the
     `quick` results were before the test split, are run again and replaced: `sweep`.)"""
     ids = {r.run_id for r in plan(cfg)}
     foreign = [row_id(row) for row in read_rows(os.path.join(folder, "runs.csv")) if row_id(row) not in ids]
