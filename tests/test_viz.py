@@ -1,7 +1,10 @@
 """Pictures (oneshot.tools.viz) and the demo's choice of what to show (oneshot.demo): sizes, the target ring
 where the scene puts the target, the base and hand where the arm has them, labels, the GIF's frames, a
 failure shown when there is one, and captions that say what the arm did."""
+import colorsys
+
 import numpy as np
+import pytest
 from PIL import Image
 
 from oneshot import demo
@@ -195,3 +198,26 @@ def test_the_demo_pictures_mark_target_base_and_hand_in_every_frame():
         marked, plain = np.asarray(marked), np.asarray(plain)
         changed = (marked != plain).any(axis=-1)
         assert (marked[changed] == viz.MARK).all() and changed.sum() > 3 * 60    # 3 panels
+
+
+def test_the_hue_wheel_puts_each_colour_on_its_splits_ring_at_its_hue():
+    """Independent of the drawing code: each colour's pixel, computed from its hue in degrees with
+    colorsys, sits at its angle on its split's ring; where a held-out hue would be on the outer ring,
+    there is background. The grid palette (several colours per hue) is refused in words."""
+    size = 360
+    image = np.asarray(viz.hue_wheel(size=size))
+    outer, centre = 0.44 * size, size / 2
+    radius = {split: fraction for split, fraction, _ in viz.RINGS}
+
+    def pixel(degrees, fraction):
+        a = np.deg2rad(degrees)
+        return image[int(round(centre - fraction * outer * np.sin(a))), int(round(centre + fraction * outer * np.cos(a)))]
+    for split in palette.SPLITS:
+        for i in palette.split_colours(split):
+            degrees = palette.colour_hue_deg(i)
+            want = np.round(np.array(colorsys.hsv_to_rgb(degrees / 360.0, 1.0, 1.0)) * 255)
+            assert np.array_equal(pixel(degrees, radius[split]), want), (split, i)
+    for i in palette.split_colours("validation"):
+        assert tuple(pixel(palette.colour_hue_deg(i), radius["train"])) == viz.BACKGROUND
+    with pytest.raises(ValueError, match="hue_wheel draws the hues palette.*PaletteConfig\\(mode='hues'\\)"):
+        viz.hue_wheel(palette.PaletteConfig(mode="grid"))

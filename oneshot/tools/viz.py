@@ -15,7 +15,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from oneshot.tools.files import atomic_write
-from oneshot.world import arm, render
+from oneshot.world import arm, palette, render
 
 BACKGROUND = (40, 40, 40)      # between tiles and behind text
 TEXT = (235, 235, 235)
@@ -187,6 +187,34 @@ def side_by_side(episodes, titles, targets=None, radius=3.0, scale=6, gap=6, fon
                   font=typeface, anchor="ma")
         images.append(canvas)
     return images
+
+
+RINGS = (("train", 1.0, "outer: meta-training"), ("validation", 0.81, "middle: validation"),
+         ("test", 0.64, "inner: test"))    # each split's ring, its radius a fraction of the wheel's
+
+
+def hue_wheel(cfg=palette.PaletteConfig(), size=360):
+    """The colour splits around the hue wheel (the hues palette, one colour per hue; Section IV's tasks):
+    each colour a disc of its own RGB at its hue angle (0 deg to the right, counter-clockwise), the
+    meta-training colours on the outer ring, the validation colours on the middle one, the test colours
+    on the inner one, named in the centre. Returns a (size, size) RGB PIL image."""
+    if cfg.mode != "hues":
+        raise ValueError(f"hue_wheel draws the hues palette, one colour per hue; got mode {cfg.mode!r}, which has "
+                         f"several per hue: pass PaletteConfig(mode='hues')")
+    image = Image.new("RGB", (size, size), BACKGROUND)
+    draw, rgb = ImageDraw.Draw(image), palette.palette_rgb(cfg)
+    centre, outer, disc = size / 2, 0.44 * size, 0.025 * size
+    for split, fraction, _ in RINGS:
+        for i in palette.split_colours(split, cfg):
+            angle = np.deg2rad(palette.colour_hue_deg(i, cfg))
+            x, y = centre + fraction * outer * np.cos(angle), centre - fraction * outer * np.sin(angle)
+            draw.ellipse([x - disc, y - disc, x + disc, y + disc], fill=tuple(int(c) for c in rgb[i]))
+    typeface = font(max(9, size // 34))
+    for row, (split, _, words) in enumerate(RINGS):
+        text = f"{words} ({len(palette.split_colours(split, cfg))})"
+        width, height = _text_size(draw, text, typeface)
+        draw.text((centre - width / 2, centre + (row - 1.5) * 1.3 * height), text, fill=TEXT, font=typeface)
+    return image
 
 
 def save_atomically(image, path, **kwargs):
