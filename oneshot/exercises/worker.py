@@ -76,8 +76,7 @@ class _Log(io.RawIOBase):
 def log_stream(fd, limit=LOG_BYTES):
     """A text stream like Python's own sys.stdout (encoding, buffer, fileno, reconfigure), buffered, over
     a `_Log` of `fd`: what the worker's print() writes to."""
-    return io.TextIOWrapper(io.BufferedWriter(_Log(fd, limit), 1 << 16), encoding="utf-8",
-                            errors="backslashreplace", line_buffering=False, write_through=False)
+    return io.TextIOWrapper(io.BufferedWriter(_Log(fd, limit), 1 << 16), encoding="utf-8", errors="backslashreplace")
 
 
 def _end(signum=None, frame=None):
@@ -161,9 +160,7 @@ def _work(job, channel, cases, supervisor):
         except poison.PackageUsed as e:                   # outside `attempt`: the submission patched the checker
             outcomes = [{"used": e.package_function}] * len(cases[n])
         wire.send(channel, {"event": "result", "exercise": n, "outcomes": outcomes})
-    sys.stdout.flush()
-    sys.stderr.flush()
-    return 0
+    return 0                                             # `main` flushes the log before the exit
 
 
 def _outcome(exercise, case, function, room):
