@@ -90,6 +90,7 @@ def test_the_ablation_lines_are_the_released_details_added_and_removed_one_at_a_
         assert f"mil-all+{detail}" in lines.ABLATION and f"mil-released+widths-{detail}" in lines.ABLATION
     assert differ(full, released) == {"channels", "hidden"} and differ(released, all_) == set(lines._ALL)
     assert differ(lines.LINES["mil-released+widths+3steps"], full) == {"inner_steps"}
+    assert differ(lines.LINES["mil-released+widths-flat+3steps"], lines.LINES["mil-released+widths-flat"]) == {"inner_steps"}
     # every committed row's line is still in the ablation (the notebook orders them by it)
     committed = os.path.join(os.path.dirname(__file__), "..", "results", "fig2_ablation", "runs.csv")
     assert {r["method"] for r in sweep_rows.read_rows(committed)} <= set(lines.ABLATION)
