@@ -19,7 +19,7 @@ import sys
 from oneshot import methods
 from oneshot.data import datasets
 from oneshot.maml import imitation
-from oneshot.tools import cli, files
+from oneshot.tools import cli, files, host
 from oneshot.training import checkpoint, fit_check, run_data
 from oneshot.training.scoring import adaptation_gain, colour_breakdown, wilson_interval
 
@@ -114,6 +114,7 @@ def main(argv=None):
     if args.raw and ckpt["ema"] is None:
         print(f"note: {args.checkpoint} kept no moving average: its parameters are the raw ones, with or without "
               f"--raw", file=sys.stderr)
+    host.blas_threads(1)       # small products: OpenBLAS's spinning threads only slow them (`oneshot.tools.host`)
     results = {}
     for split, dataset in loaded.items():
         condition = method.conditioner(params, seed=args.seed)

@@ -25,7 +25,7 @@ from oneshot.experiments.summary import plot, summarise
 from oneshot.experiments import rows as sweep_rows
 from oneshot.experiments.rows import COLUMNS, RunSpec
 from oneshot.experiments.sweep import sweep
-from oneshot.tools import cli
+from oneshot.tools import cli, host
 from test_checkpoint import _set, rewrite
 
 TINY = PROFILES["tiny"]
@@ -490,6 +490,30 @@ def test_a_run_with_a_moving_average_also_scores_its_raw_parameters_as_evaluate_
     assert [raw["eq2_before"], raw["eq2_after"]] == [round(scored["adaptation_gain"][k], 4) for k in ("before", "after")]
     assert raw["eq2_before"] != notes["eq2_before"]                         # not the moving average's
     assert set(raw) == {"successes", "unadapted_successes", "eq2_before", "eq2_after"}
+
+
+def test_evaluate_scores_with_one_blas_thread(tmp_path, monkeypatch):
+    """`python -m oneshot.evaluate` runs its trials with one BLAS thread, as train, fig2 and the demo do:
+    its products are small and OpenBLAS's spinning threads made it 5-10x slower beside other work."""
+    before = host.blas_threads(2)
+    if before is None:
+        pytest.skip("NumPy's BLAS is not an OpenBLAS that oneshot.tools.host can reach")
+    spec = next(r for r in plan(TINY) if r.seed == 0 and r.method == "mil-conv0" and r.size == 9)
+    fig2.ensure_data(TINY, tmp_path / "data", workers=1, progress=False)
+    fig2.run_one(spec, str(tmp_path / "run"), run_context(TINY, tmp_path / "data"))
+    seen, score = [], evaluate.imitation.one_shot_success
+
+    def scoring(*args, **kwargs):                 # the count at scoring time (read by setting it, then put back)
+        seen.append(host.blas_threads(1))
+        host.blas_threads(seen[-1])
+        return score(*args, **kwargs)
+    monkeypatch.setattr(evaluate.imitation, "one_shot_success", scoring)
+    try:
+        host.blas_threads(2)
+        evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--split", TINY.score, "--trials", "1", "--train", ""])
+    finally:
+        host.blas_threads(before)
+    assert seen == [1]
 
 
 def test_a_resumed_run_counts_the_training_time_of_its_killed_sittings(tmp_path):

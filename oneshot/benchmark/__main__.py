@@ -105,6 +105,7 @@ def main(argv=None):
         cores = os.cpu_count() or 1
         result = bench_collect(args.demos, min(args.workers or cores, cores))
     elif args.what == "privileged":
+        host.blas_threads(1)                 # as training keeps (`oneshot.tools.host`)
         result = bench_privileged(args.given, args.steps, trials=args.trials, feature_points=args.feature_points,
                                   seed=args.seed, train_data=args.train_data)
     else:
