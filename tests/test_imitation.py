@@ -102,8 +102,10 @@ def test_adaptation_lowers_the_loss_and_alpha_zero_changes_nothing(rng):
     assert after < before
     same = imitation.adapt(params, demo, alpha=0.0, steps=3)
     assert all(np.array_equal(same[k], params[k]) for k in params)
-    adapted = imitation.adapt(params, demo)
+    adapted = imitation.adapt(params, demo, 0.001, 3)
     assert all(adapted[k].dtype == np.float32 for k in adapted)
+    with pytest.raises(TypeError):           # no default step: a policy adapts as it was meta-trained
+        imitation.adapt(params, demo)
 
 
 def test_batched_meta_gradient_keeps_float32(rng):
