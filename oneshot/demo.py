@@ -39,6 +39,7 @@ SHOWN_COLOURS = 4           # test colours in the film strip, one trial each
 SPLIT = "test"              # the colours the demo shows: never seen by training or by any choice
 # The ways a trial fails, as `outcome` tells them apart.
 NEAR_MISS, DISTRACTOR, ASTRAY = "missed: near miss", "missed: went to a distractor", "missed: near no disc"
+LEFT = "missed: reached, then left"
 
 
 def shown_trials(successes, n_shown=SHOWN_COLOURS):
@@ -77,12 +78,17 @@ def outcome(trial, cfg=WorldConfig()):
     the final fifth of the episode (`oneshot.world.reach.closest_object`): NEAR_MISS if the hand came
     within half cfg.min_separation (0.06 m) of the target's centre, DISTRACTOR if of a distractor's, else
     ASTRAY (it stopped between or beyond the discs). Within that radius the hand is near one disc at most.
+    But LEFT if the hand was within the success radius of the target before the final fifth (the demo once
+    said "went to a distractor" of an arm that came within 11 mm of its target and swung away).
     (`oneshot.maml.imitation.one_shot_success` counts failures by the closest disc alone, however far.)
     trial: {"success", "end_effector" (T, 2) m, "scene"}; cfg: the WorldConfig of the trial's world.
     """
     if trial["success"]:
         return "reached"
-    closest, distance = closest_object(trial["end_effector"], trial["scene"].positions)
+    scene = trial["scene"]
+    if (np.linalg.norm(trial["end_effector"] - scene.positions[scene.target], axis=1) <= cfg.success_radius).any():
+        return LEFT
+    closest, distance = closest_object(trial["end_effector"], scene.positions)
     if distance > cfg.min_separation / 2:
         return ASTRAY
     return NEAR_MISS if closest == trial["scene"].target else DISTRACTOR

@@ -652,6 +652,27 @@ def test_compare_says_which_points_agree_within_their_interval():
     assert [p["agree"] for p in summary.compare(rows([[4, 4, 4], [4, 4, 4], [4, 4, 4]]), committed)] == [False]
 
 
+def test_an_interrupted_sweep_counts_the_runs_it_has_finished(tmp_path, monkeypatch, capsys):
+    """Ctrl-C: `N of M runs finished`, counting the rows this work folder produced (all, with --keep-rows),
+    not every row of runs.csv (committed rows are run again)."""
+    monkeypatch.chdir(tmp_path)
+    assert command.main(["fig2", "--profile", "tiny", "--data-only", "--data", "d", "--no-progress"]) == 0
+    spec = next(r for r in plan(TINY) if r.method == "mil-conv0" and r.seed == 0)
+    row = sweeping.execute(fig2.run_one, spec, os.path.abspath(os.path.join("w", spec.run_id)), run_context(TINY, "d"))
+    committed = dict(row, seed=1)                                       # a row no run of w produced
+    os.makedirs("o")
+    sweep_rows.write_rows([row, committed], os.path.join("o", "runs.csv"))
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(command, "sweep", interrupted)
+    for keep, finished in (([], 1), (["--keep-rows"], 2)):
+        assert command.main(["fig2", "--profile", "tiny", "--data", "d", "--work", "w", "--out", "o", "--no-progress",
+                             *keep]) == 130
+        assert (f"error: interrupted; {finished} of {len(plan(TINY))} runs finished (o/runs.csv), the others continue "
+                f"from their checkpoints" in capsys.readouterr().err)
+
+
 def test_a_finished_run_ships_as_a_policy_that_scores_what_its_row_says(tmp_path, monkeypatch, capsys):
     """`ship`: the run's checkpoint, its datasets looked for where `fig2 --data-only` collects them; the
     shipped file, evaluated there, scores its row's numbers. An unfinished run or another line: exit 2."""

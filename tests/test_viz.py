@@ -147,6 +147,13 @@ def test_outcomes_say_where_the_arm_stopped_by_distance_not_only_by_the_closest_
     assert demo.outcome(trial([0.0, 0.07])) == demo.ASTRAY == "missed: near no disc"   # between all three
     # the radius is the world's: half its min_separation
     assert demo.outcome(trial([0.1, 0.07]), WorldConfig(min_separation=0.16)) == demo.NEAR_MISS
+    # within the success radius of the target (0.05 m) before the final fifth, then away: it left
+    left = trial([-0.1, 0.055])
+    left["end_effector"][:3] = [0.1, 0.049]
+    assert demo.outcome(left) == demo.LEFT == "missed: reached, then left"
+    left["end_effector"][:3] = [0.1, 0.051]                              # never within the radius
+    assert demo.outcome(left) == demo.DISTRACTOR
+    assert demo.outcome(left, WorldConfig(success_radius=0.052)) == demo.LEFT
 
 
 def test_marked_frames_mark_the_base_and_the_hand_where_given():

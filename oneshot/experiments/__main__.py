@@ -47,7 +47,7 @@ from oneshot.experiments.rows import read_rows
 from oneshot.experiments.ship import add_ship_command, run_ship_command
 from oneshot.experiments.summary import (PLOTS, compare, plot, pool_evaluations, read_evaluations, summarise,
                                         write_summary)
-from oneshot.experiments.sweep import SweepLocked, sweep
+from oneshot.experiments.sweep import SweepLocked, done_rows, sweep
 from oneshot.tools import cli
 
 # Optional extras: the sweep runs without them and says which one a flag or the plot needs.
@@ -177,8 +177,10 @@ def main(argv=None):
             except SweepLocked as e:
                 sys.exit(f"error: {e}")
     except KeyboardInterrupt:
-        print(f"error: interrupted; the finished runs are in {os.path.join(out, 'runs.csv')} and the others "
-              f"continue from their checkpoints: run the same command to resume", file=sys.stderr)
+        done = done_rows(out, args.work, args.keep_rows)
+        print(f"error: interrupted; {sum(r.run_id in done for r in runs)} of {len(runs)} runs finished "
+              f"({os.path.join(out, 'runs.csv')}), the others continue from their checkpoints: run the same "
+              f"command to resume", file=sys.stderr)
         return 130
     finally:
         signal.signal(signal.SIGTERM, previous)

@@ -70,6 +70,13 @@ def produced(row, work_dir):
     return {k: kept.get(k) for k in COLUMNS} == {k: row[k] for k in COLUMNS}
 
 
+def done_rows(results_dir, work_dir, keep_rows=False):
+    """{run id: row} of results_dir/runs.csv's rows that count as done (see `sweep`): those work_dir
+    produced, or every row with keep_rows."""
+    rows = read_rows(os.path.join(results_dir, "runs.csv"))        # runs.csv is replaced whole: safe to read
+    return {row_id(row): row for row in rows if keep_rows or produced(row, work_dir)}
+
+
 _stopping = False                              # set in a pool worker the sweep is stopping
 
 
@@ -130,15 +137,14 @@ def sweep(runs, results_dir, work_dir, context, run_fn, executor=None, progress=
     if len(set(ids)) != len(ids):
         raise ValueError(f"runs lists {sorted({i for i in ids if ids.count(i) > 1})} more than once")
     csv_path = os.path.join(results_dir, "runs.csv")
-    mine = lambda rows: {row_id(row): row for row in rows if keep_rows or produced(row, work_dir)}
-    done = mine(read_rows(csv_path))                  # runs.csv is replaced whole: safe to read
+    done = done_rows(results_dir, work_dir, keep_rows)
     if all(i in done for i in ids):            # nothing to run: no lock (another sweep may be running)
         return _finished(done, ids)
     with contextlib.ExitStack() as stack:
         _lock(results_dir, ".sweep.lock", stack)
         _lock(work_dir, ".sweep.lock", stack)
         rows = read_rows(csv_path)
-        done = mine(rows)
+        done = done_rows(results_dir, work_dir, keep_rows)
         others = [row for row in rows if row_id(row) not in done]
         redo = sum(row_id(row) in ids for row in others)
         if redo:
