@@ -327,6 +327,9 @@ def test_cli_check_exit_statuses(tmp_path, capsys):
     assert capsys.readouterr().out.startswith("exercise 1: not yet: you judge the whole episode")
     assert main(["check", "1", "--file", str(tmp_path / "raises.py")]) == 1
     assert "raised ZeroDivisionError" in capsys.readouterr().out
+    (tmp_path / "stub.py").write_text("import numpy as np\n\n" + EXERCISES[1].stub)
+    assert main(["check", "1", "--file", str(tmp_path / "stub.py")]) == 1
+    assert capsys.readouterr().out == "exercise 1: not written: is_success raises NotImplementedError, as the stub does\n"
     for number, file, words in [(1, "missing.py", "no such file"),
                                 (5, "right.py", "defines no function imitation_loss"),
                                 (1, "broken.py", "could not load broken.py: SyntaxError"),

@@ -72,11 +72,12 @@ def test_a_folder_of_executed_and_unexecuted_notebooks_is_graded_into_a_gradeboo
     assert [rows[s]["total"] for s in ("alice", "bob", "carol", "dave")] == ["3", "1", "0", "1"]
     assert rows["bob"]["exercise_9"] == "1" and rows["bob"]["exercise_8"] == "0"
     assert rows["bob"]["notes"] == "8 not yet; 10 missing" and rows["dave"]["submission"] == "dave/"
-    assert rows["carol"]["notes"] == "8 not yet; 9 not yet; 10 not yet" and rows["alice"]["max_score"] == "3"
+    assert rows["carol"]["notes"] == "8 not written; 9 not written; 10 not written" and rows["alice"]["max_score"] == "3"
+    assert "carol.ipynb  total  0/3 correct, 0 attempted" in out           # stubs handed in as they were given out
     students = {s["student"]: s for s in json.loads(grades.read_text())["students"]}
     assert students["bob"]["verdicts"]["8"].startswith("not yet: you stacked the demo's FIRST image")
     assert students["bob"]["verdicts"]["10"].startswith("missing (cell ") and "SyntaxError" in students["bob"]["verdicts"]["10"]
-    assert students["carol"]["verdicts"]["9"] == "not yet: wilson_interval is not written yet (it raises NotImplementedError)"
+    assert students["carol"]["verdicts"]["9"] == "not written: wilson_interval raises NotImplementedError, as the stub does"
 
 
 def test_an_assignment_grades_only_its_exercises(tmp_path, capsys):

@@ -89,7 +89,7 @@ def _check(args):
     if verdict == "correct":
         print(f"exercise {args.number} ({exercise.title}): correct")
         return 0
-    print(f"exercise {args.number}: {verdict if verdict.startswith(('not yet', 'flagged')) else 'not yet: ' + verdict}")
+    print(f"exercise {args.number}: {verdict if verdict.startswith(('not yet', 'not written', 'flagged')) else 'not yet: ' + verdict}")
     return 1
 
 

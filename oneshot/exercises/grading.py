@@ -26,8 +26,8 @@ _expected, _lock = {}, threading.Lock()
 
 @dataclass
 class Graded:
-    """One submission's grade: `verdicts` {exercise: "correct" | "missing" | "not yet: ..." | "flagged: ..."
-    | "timed out ..." | "crashed ..."}, or `load_error` when its code could not load; `notes` on its
+    """One submission's grade: `verdicts` {exercise: "correct" | "missing" | "not written: ..." | "not yet: ..."
+    | "flagged: ..." | "timed out ..." | "crashed ..."} (the first three not attempted), or `load_error` when its code could not load; `notes` on its
     notebook cells that failed."""
     label: str
     numbers: list
@@ -89,7 +89,10 @@ def _expectations(number):
 
 
 def verdict(number, outcomes):
-    """The verdict on an exercise's outcomes: "correct", "not yet: ..." or "flagged: ..." (see `Graded`)."""
+    """The verdict on an exercise's outcomes: "correct", "not written: ..." (the stub as handed out: it
+    raised NotImplementedError on every case), "not yet: ..." or "flagged: ..." (see `Graded`)."""
+    if all(outcome.not_written for outcome in outcomes):
+        return f"not written: {EXERCISES[number].name} raises NotImplementedError, as the stub does"
     cases, wants = _expectations(number)
     result = judge(EXERCISES[number], CHECKERS[number], outcomes.__getitem__, cases, wants)
     words = wire.clean(result.message, 2000)             # quotes the submission's values: no control characters
@@ -161,6 +164,6 @@ def report(graded, width=0):
     label = f"{graded.label:<{width}}"
     lines = [f"{label}   -  {graded.load_error}"] if graded.load_error else \
         [f"{label}  {n:>2}  {graded.verdicts[n]}" for n in graded.numbers]
-    attempted = sum(not str(v).startswith("missing") for v in graded.verdicts.values())
+    attempted = sum(not str(v).startswith(("missing", "not written")) for v in graded.verdicts.values())
     flagged = f", {len(graded.flagged)} flagged" if graded.flagged else ""
     return lines + [f"{label}  total  {graded.total}/{len(graded.numbers)} correct, {attempted} attempted{flagged}"]
