@@ -127,6 +127,13 @@ def main(argv=None):
     if method.shards > frames:
         p.error(f"argument --shards: the processes share each demo's {frames} frames, so 1 to {frames}; "
                 f"got {cfg.shards}")
+    if start < cfg.iterations or not method.learns:     # (else train() says there is nothing to train)
+        work = (f"fitting the {cfg.method} policy" if not method.learns else
+                f"training {cfg.iterations - start} meta-iteration{'s' * (cfg.iterations - start != 1)}"
+                + (f" (from {start})" if start else ""))
+        settings = "the run's own settings" if args.resume and args.profile is None else f"profile {profile}"
+        print(f"{work}: {settings}, seed {cfg.seed}, into {os.path.join(run, 'checkpoint.npz')} "
+              f"(Ctrl-C saves it; --resume continues)")
     if method.describe():
         print(method.describe())
     host.tune_malloc()

@@ -91,9 +91,11 @@ def test_a_bare_resume_continues_a_smoke_run_with_its_own_config(capsys, smoke, 
     run = tmp_path / "run"
     train.main(["--profile", "smoke", "--run", str(run), "--train-data", smoke.train_data, "--validation-data",
                 smoke.validation_data, "--iterations", "1"])
-    capsys.readouterr()
+    assert capsys.readouterr().out.startswith(f"training 1 meta-iteration: profile smoke, seed 0, into "
+                                              f"{run / 'checkpoint.npz'} (Ctrl-C saves it; --resume continues)\n")
     train.main(["--run", str(run), "--resume", "--iterations", "2"])
     out, err = capsys.readouterr()
+    assert out.startswith("training 1 meta-iteration (from 1): the run's own settings, seed 0, into ")
     assert "trained 1 meta-iteration (from 1 to 2)" in out and "collecting" not in err
     ckpt = checkpoint.load(run / "checkpoint.npz")
     assert ckpt["iteration"] == 2 and ckpt["config"] == dataclasses.replace(
