@@ -722,3 +722,27 @@ def test_run_keeps_a_failed_workers_report_after_the_one_line(capsys):
     assert exit_.value.code == 1
     assert capsys.readouterr().err.splitlines() == ["error: shard process 0 died (exit code -9)",
                                                     "worker 0: MemoryError"]
+
+
+# --- a newcomer's first mistakes: each refused in one line that names the fix ---------------------------
+
+def test_a_newcomers_first_mistakes_are_named_with_their_fix(capsys, tmp_path):
+    from oneshot.exercises import __main__ as exercises
+    from oneshot.experiments import __main__ as experiments
+    grader = lambda argv: sys.exit(exercises.main(argv))            # as its __main__ runs it
+    (tmp_path / "alice.py").write_text("def is_success(e, t, r=0.05):\n    return True\n")
+    for main, argv, words in (
+            (experiments.main, [], "error: name a command: fig2, summarise, seeds or ship "),
+            (benchmark.main, [], "error: name a command: expert, collect, maml or privileged "),
+            (grader, ["grade", str(tmp_path / "alice.py")],
+             f"is a file, not a folder of submissions: grade the folder that holds it, or check one exercise in it "
+             f"with `python -m oneshot.exercises check N --file {tmp_path / 'alice.py'}`"),
+            (grader, ["check", "five", "--file", str(tmp_path / "alice.py")],
+             "argument number: expected a whole number >= 1; got 'five'"),
+            (experiments.main, ["summarise", str(tmp_path / "nope")], f"no such folder: {tmp_path / 'nope'} "
+                                                                      f"(summarise takes a finished sweep's")):
+        line, _ = refused(capsys, main, argv)
+        assert words in line, line
+    with pytest.raises(SystemExit):                  # a parser with one subcommand names it
+        cli.Parser(prog="p").error("the following arguments are required: {only}")
+    assert capsys.readouterr().err == "error: name the command only (see p --help)\n"

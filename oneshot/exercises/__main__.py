@@ -138,7 +138,7 @@ def parser():
     commands = main.add_subparsers(dest="command", metavar="{list,check,grade}", parser_class=cli.Parser)
     commands.add_parser("list", help="the exercises, their functions, and the notebooks that hold them")
     one = commands.add_parser("check", parents=[limits], help="check one exercise's function, defined in a file")
-    one.add_argument("number", type=int)
+    one.add_argument("number", type=cli.positive_int, help="the exercise (python -m oneshot.exercises list)")
     one.add_argument("--file", required=True, help="a .py file or notebook (or a folder of them) defining the function")
     many = commands.add_parser("grade", parents=[limits], help="grade every submission in DIR",
                                description="Grade every submission in DIR: its .py files, notebooks, and folders "

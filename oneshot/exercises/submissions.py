@@ -56,6 +56,9 @@ def is_submission(path):
 def submissions(folder):
     """The submissions in `folder`, in name order (names starting with "." or "_" are not submissions)."""
     folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise SubmissionError(f"{folder} is a file, not a folder of submissions: grade the folder that holds it, "
+                              f"or check one exercise in it with `python -m oneshot.exercises check N --file {folder}`")
     if not folder.is_dir():
         raise SubmissionError(f"no such folder: {folder}")
     found = sorted(p for p in folder.iterdir() if not p.name.startswith((".", "_")) and is_submission(p))

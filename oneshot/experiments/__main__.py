@@ -217,6 +217,9 @@ def _labels(lines=()):
 def _summarise(folder, argv):
     """Summarise a results folder again from its runs.csv, keeping its summary's config and command and
     recording this one (`summarise`, `plot`)."""
+    if not os.path.isdir(folder):
+        raise FileNotFoundError(f"no such folder: {folder} (summarise takes a finished sweep's results folder, "
+                                f"e.g. results/fig2_quick)")
     if not os.path.isfile(os.path.join(folder, "summary.json")):
         raise ValueError(f"{folder} holds no summary.json: summarise redoes a finished sweep's summary; finish the "
                          f"sweep first (run its fig2 command again)")

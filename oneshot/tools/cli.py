@@ -14,6 +14,7 @@ import argparse
 import errno
 import math
 import os
+import re
 import signal
 import sys
 import tempfile
@@ -28,6 +29,10 @@ class Parser(argparse.ArgumentParser):
     not the usage block followed by the message."""
 
     def error(self, message):
+        commands = re.fullmatch(r"the following arguments are required: \{(\w[\w,-]*)\}", message)
+        if commands:                              # no subcommand given: name them in words
+            *first, last = commands.group(1).split(",")
+            message = f"name a command: {', '.join(first)} or {last}" if first else f"name the command {last}"
         sys.stderr.write(f"error: {message} (see {self.prog} --help)\n")
         raise SystemExit(2)
 
