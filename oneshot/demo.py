@@ -216,7 +216,7 @@ def main(argv=None):
     gif = os.path.join(args.out, "one_shot_trial.gif")
     viz.save_gif(animation(world.config, demo_list[i], *trials[i, j]), gif)
     name = palette.colour_name(list(demos)[i], world.config.palette)
-    print(f"wrote {gif} ({name}, trial {j}: the demo, and the policy before and after adapting in the same new scene)")
+    print(f"wrote {gif} ({name}, trial {j + 1} of {args.trials}: the demo, and the policy before and after adapting in the same new scene)")
     return {"successes": wins, "trials": n, "unadapted_successes": base_wins}
 
 
