@@ -120,3 +120,79 @@ def test_methods_refuse_unknown_names_and_the_random_policy_has_no_gradient():
         methods.of(_cfg("maml"))
     with pytest.raises(NotImplementedError, match="does not learn by gradient"):
         methods.of(_cfg("random")).meta_gradient({}, None, None)
+
+
+def test_the_contextual_loss_is_eq2_on_the_evaluate_demo_beside_the_adapt_demos_final_image(rng):
+    """contextual_loss by hand: for each task, the network on the evaluate frames with the ADAPT demo's
+    final image as channels 3..5 of every frame; eq. (2) summed over frames, averaged over the B tasks."""
+    params = network.init_params(dataclasses.replace(NET, image_channels=6), rng, np.float64)
+    params = {k: v + 0.3 * rng.normal(size=v.shape) for k, v in params.items()}
+    adapt, evaluate = _demos(rng), _demos(rng)
+    losses = []
+    for b in range(B):
+        context = np.repeat(adapt[0][b, -1][None], T, axis=0)                    # (T, 8, 8, 3)
+        u = network.forward(params, np.concatenate([evaluate[0][b], context], axis=-1), evaluate[1][b])
+        losses.append(np.sum((u - evaluate[2][b]) ** 2))
+    assert float(contextual_loss(params, adapt, evaluate)) == pytest.approx(np.mean(losses), rel=1e-12)
+
+
+def _lstm_by_hand(params, demo, units):
+    """The LSTM of Hochreiter & Schmidhuber with a forget gate, in plain NumPy on one demo (images (T, H, W,
+    3), states, actions): x_t = [features, state, action], [i, f, g, o] = [x_t, h] lstm_w + lstm_b,
+    c = s(f) c + s(i) tanh(g), h = s(o) tanh(c). Returns the final h (units,)."""
+    s = lambda z: 1 / (1 + np.exp(-z))
+    features = network.trunk(params, demo[0])
+    h, c = np.zeros(units), np.zeros(units)
+    for t in range(len(demo[0])):
+        z = np.concatenate([features[t], demo[1][t], demo[2][t], h]) @ params["lstm_w"] + params["lstm_b"]
+        i, f, g, o = np.split(z, 4)
+        c = s(f) * c + s(i) * np.tanh(g)
+        h = s(o) * np.tanh(c)
+    return h
+
+
+def test_the_lstm_policy_reads_every_frame_of_the_demo_and_acts_on_features_state_and_summary(rng):
+    """Against a plain NumPy LSTM (`_lstm_by_hand`): the policy after reading a demo is the head on
+    [the frame's features, its state, the final hidden state]; lstm_loss is eq. (2) of that policy on
+    the evaluate demo after reading the adapt demo, averaged over the B tasks. Its demo's last frame
+    counts (changing only it changes the action)."""
+    units = 4
+    params = lstm_init_params(lstm_network_config(NET, units), units, rng, np.float64)
+    params = {k: v + 0.3 * rng.normal(size=v.shape) for k, v in params.items()}
+    adapt, evaluate = _demos(rng), _demos(rng)
+    image, state = rng.random((1, 8, 8, 3)), rng.normal(size=(1, 6))
+    demo = tuple(a[0] for a in adapt)
+    h = _lstm_by_hand(params, demo, units)
+    expected = network.head(params, np.concatenate([network.trunk(params, image), state, h[None]], axis=1))
+    np.testing.assert_allclose(lstm_policy(params, demo)(image, state, None), expected, rtol=1e-10)
+    losses = []
+    for b in range(B):
+        h = _lstm_by_hand(params, tuple(a[b] for a in adapt), units)
+        context = np.repeat(h[None], T, axis=0)
+        u = network.head(params, np.concatenate([network.trunk(params, evaluate[0][b]), evaluate[1][b], context], 1))
+        losses.append(np.sum((u - evaluate[2][b]) ** 2))
+    assert float(lstm_loss(params, adapt, evaluate)) == pytest.approx(np.mean(losses), rel=1e-10)
+    last = (demo[0], demo[1], demo[2].copy())
+    last[2][-1] += 1.0                                             # only the last frame's action
+    assert np.abs(lstm_policy(params, last)(image, state, None) - expected).max() > 1e-6
+
+
+def test_the_random_policy_keeps_the_std_that_scored_best_and_draws_from_its_seed(monkeypatch):
+    """fit: of cfg.random_stds the one whose trials scored best (the first of equals), each scored with the
+    seed it is given; conditioner: the torques of np.random.default_rng(seed), one stream through every
+    demo it is shown (so trials differ), another stream for another seed."""
+    method = methods.of(_cfg("random", random_stds=(0.1, 0.5, 1.0, 2.0)))
+    rates, seen = iter([0.2, 0.6, 0.6, 0.1]), []
+
+    def scored(condition, dataset, trials, seed, progress):
+        seen.append(seed)
+        return {"rate": next(rates)}
+    monkeypatch.setattr(imitation, "one_shot_success", scored)
+    best, scores = method.fit(method.init_params(None, None), "dataset", 3, seed=7)
+    assert scores == {0.1: 0.2, 0.5: 0.6, 1.0: 0.6, 2.0: 0.1} and best["std"].tolist() == [0.5] and seen == [7] * 4
+    condition = method.conditioner({"std": np.array([0.5], np.float32)}, seed=3)
+    drawn = [condition(None)(None, None, None) for _ in range(2)]                 # two trials
+    np.testing.assert_allclose(np.concatenate(drawn), 0.5 * np.random.default_rng(3).standard_normal((2, 2)),
+                               rtol=1e-6)
+    other = method.conditioner({"std": np.array([0.5], np.float32)}, seed=4)(None)(None, None, None)
+    np.testing.assert_allclose(other, 0.5 * np.random.default_rng(4).standard_normal((1, 2)), rtol=1e-6)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from oneshot.data import collection, datasets, npz
+from oneshot.expert import controller
 from oneshot.world import palette
 from oneshot.world.arm import ArmConfig
 from oneshot.world.palette import PaletteConfig
@@ -380,3 +381,49 @@ def test_a_colour_outside_the_datasets_split_is_refused_on_save(small, tmp_path,
         npz.write(f, {"metadata": np.array(json.dumps(written, sort_keys=True)), **arrays})
     with pytest.raises(datasets.DatasetError, match=rf"task_colours holds \[{new}\], not 'train' colours"):
         datasets.load(tmp_path / "bad.npz")
+
+
+def test_validate_names_a_target_index_out_of_range_a_nan_position_and_a_target_of_another_colour(small):
+    """Each is refused as a DatasetError saying what: target_index = n (one past the last object), a NaN
+    object position, one demo whose target object is a distractor (not its task's colour)."""
+    def changed(key, change):
+        bad = dict(small, **{key: small[key].copy()})
+        change(bad[key])
+        return bad
+    n_obj = small["colours"].shape[2]
+    with pytest.raises(datasets.DatasetError, match=rf"target_index must lie in \[0, {n_obj}\)"):
+        datasets.validate(changed("target_index", lambda a: a.__setitem__((0, 1), n_obj)))
+    with pytest.raises(datasets.DatasetError, match="positions contains NaN"):
+        datasets.validate(changed("positions", lambda a: a.__setitem__((2, 0, 1, 1), np.nan)))
+    distractor = int(np.flatnonzero(small["colours"][1, 0] != small["task_colours"][1])[0])
+    with pytest.raises(datasets.DatasetError, match="some demo's target object does not have its task's colour"):
+        datasets.validate(changed("target_index", lambda a: a.__setitem__((1, 0), distractor)))
+
+
+def test_a_failed_demo_is_retried_on_a_fresh_scene_counted_and_the_successful_seed_kept(monkeypatch):
+    """The expert's first scene for demo 1 of task 0 is made to fail: collection retries it on the scene of
+    attempt 1 (another seed), stores that seed (which reproduces the stored demo), and counts the failure:
+    1 failed attempt, expert success rate 4 / 5."""
+    world = WorldConfig(image_size=8, horizon=8)
+    failing, demonstrate = collection.scene_seed(3, 0, 1, 0), controller.demonstrate
+    assert len({collection.scene_seed(3, 0, 1, attempt) for attempt in range(collection.MAX_ATTEMPTS)}) == 10
+
+    def first_scene_fails(*args, seed, **kwargs):
+        demo = demonstrate(*args, seed=seed, **kwargs)
+        return dict(demo, success=False) if seed == failing else demo
+    monkeypatch.setattr(controller, "demonstrate", first_scene_fails)
+    data = collection.collect(2, 2, "train", seed=3, workers=1, world_cfg=world, progress=False)
+    meta = data["metadata"]
+    assert meta["failed_attempts"] == 1 and meta["expert_success_rate"] == pytest.approx(4 / 5)
+    assert data["seeds"][0, 1] == collection.scene_seed(3, 0, 1, 1) and data["seeds"][0, 0] == collection.scene_seed(3, 0, 0, 0)
+    obs, _ = ReachWorld(dataclasses.replace(world, split="train")).reset(
+        seed=int(data["seeds"][0, 1]), options={"target_colour": int(data["task_colours"][0])})
+    assert np.array_equal(obs["image"], data["images"][0, 1, 0])
+
+
+def test_the_task_colours_are_a_seeded_draw_of_distinct_colours_of_the_split():
+    """The same seed, the same colours in the same order; another seed, another draw."""
+    draws = {seed: collection.task_colours(5, "train", seed).tolist() for seed in (0, 1)}
+    assert collection.task_colours(5, "train", 0).tolist() == draws[0] and draws[0] != draws[1]
+    for colours in draws.values():
+        assert len(set(colours)) == 5 and set(colours) <= set(palette.split_colours("train").tolist())

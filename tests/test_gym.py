@@ -323,3 +323,21 @@ def test_images_are_writable_and_a_non_real_action_is_refused_in_its_own_words()
         env.step(np.array([True, False]))
     with pytest.raises(ValueError, match=r"pass a float array \(np.real\(action\) drops an imaginary part\)"):
         env.step(np.array([1j, 0]))
+
+
+def test_the_state_bounds_come_from_the_smallest_eigenvalue_of_the_mass_matrix():
+    """state_bounds by its docstring's argument, with lambda_min found here by np.linalg.eigvalsh of the
+    mass matrix (the inverse of the dynamics' own M^-1) over elbow angles: |qd| <= |u| t / lambda_min and
+    |q| <= |q0| + 8 start_noise + |u| t^2 / (2 lambda_min), |u| = sqrt(2) max_torque, t = T dt. For the
+    default arm, the docstring's 744 rad/s and pi/2 + 372 rad."""
+    from oneshot.world.gym import state_bounds
+    for config in (WorldConfig(), WorldConfig(horizon=10, start_noise=0.05, arm=arm.ArmConfig(m2=0.3, max_torque=0.8))):
+        a = config.arm
+        lam = min(np.linalg.eigvalsh(np.linalg.inv(np.array([[i11, i12], [i12, i22]]))).min()
+                  for i11, i12, i22 in zip(*arm._inverse_mass(np.cos(np.linspace(0, np.pi, 181)), a)))
+        u, t = np.sqrt(2) * a.max_torque, config.horizon * a.dt
+        angle, velocity = state_bounds(config)
+        assert velocity == pytest.approx(u * t / lam, rel=1e-4)
+        assert angle == pytest.approx(max(np.abs(a.q0)) + 8 * config.start_noise + u * t ** 2 / (2 * lam), rel=1e-4)
+    angle, velocity = state_bounds(WorldConfig())
+    assert round(velocity) == 744 and angle - np.pi / 2 == pytest.approx(372, abs=0.5)

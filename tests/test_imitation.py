@@ -225,10 +225,10 @@ def test_the_other_colour_demo_is_the_colour_farthest_in_hue():
         imitation.farthest_hue_tasks(colours[:1], cfg)
 
 
-def _one_colour_dataset(k=1, T=20):
-    world = WorldConfig(split="validation")
-    meta = {"split": "validation", "world": dataclasses.asdict(world)}
-    colour = int(palette.split_colours("validation")[0])
+def _one_colour_dataset(k=1, T=20, split="validation"):
+    world = WorldConfig(split=split)
+    meta = {"split": split, "world": dataclasses.asdict(world)}
+    colour = int(palette.split_colours(split)[0])
     return {"metadata": meta, "images": np.zeros((1, k, T, 32, 32, 3), np.uint8),
             "states": np.zeros((1, k, T, 6), np.float32), "actions": np.zeros((1, k, T, 2), np.float32),
             "task_colours": np.array([colour]), "seeds": np.zeros((1, k), np.int64)}
@@ -244,3 +244,35 @@ def test_failures_next_to_the_target_count_as_near_misses_not_as_a_distractor(mo
     monkeypatch.setattr(imitation, "rollout", rollout)
     r = imitation.one_shot_success(lambda demo: None, _one_colour_dataset(), 2, progress=False)
     assert r["successes"] == 0 and r["failures"] == {"near_miss": 2, "wrong_object": 0}
+
+
+def test_a_rollouts_policy_sees_what_prepare_demos_makes_of_a_recorded_demo_and_its_torques_are_scaled():
+    """At meta-test the policy gets the units it was trained on: in the same scene, its first observation is
+    prepare_demos' first frame of the expert's recorded demonstration (image in [0, 1], state / STATE_SCALE),
+    and its action, in units of the torque bound, reaches the world multiplied by it (N m)."""
+    from oneshot.expert import controller
+    world = ReachWorld(WorldConfig(split="validation"))
+    demo = controller.demonstrate(world, seed=4)
+    images, states, _ = imitation.prepare_demos(demo["images"], demo["states"], demo["actions"],
+                                                world.config.arm.max_torque)
+    seen, applied, step = [], [], world.step
+
+    def policy(image, state, scene):
+        seen.append((image, state))
+        return np.array([[0.5, -1.0]])
+    world.step = lambda action: applied.append(action) or step(action)
+    imitation.rollout(policy, world, 4)
+    np.testing.assert_array_equal(seen[0][0], images[:1])
+    np.testing.assert_allclose(seen[0][1], states[:1], rtol=1e-6)
+    np.testing.assert_allclose(applied[0], [0.5 * world.config.arm.max_torque, -world.config.arm.max_torque])
+
+
+@pytest.mark.parametrize("split", ["train", "validation", "test"])
+def test_each_trial_acts_in_the_scene_of_its_trial_seed_for_the_datasets_split(monkeypatch, split):
+    """Trial j of task i runs in the scene trial_seed(seed, i, j, split) of the dataset's own split: the
+    test split's scenes are its own (no choice made on validation scenes has seen one)."""
+    played = []
+    monkeypatch.setattr(imitation, "rollout", lambda policy, world, seed, colour: played.append(seed) or
+                        {"success": True, "end_effector": None, "scene": None})
+    imitation.one_shot_success(lambda demo: None, _one_colour_dataset(k=2, T=2, split=split), 3, seed=2, progress=False)
+    assert played == [imitation.trial_seed(2, 0, j, split) for j in range(3)]

@@ -178,3 +178,22 @@ def test_parameter_count_is_what_init_params_builds_for_every_profile_and_line()
         net_cfg = method.network_config(32)
         built = method.init_params(net_cfg, np.random.default_rng(0))
         assert method.parameter_count(net_cfg) == sum(v.size for v in built.values()), cfg
+
+
+def test_the_mil_methods_meta_test_adapts_with_its_configs_inner_loop(rng):
+    """MIL.conditioner is eq. (1) as the config sets it (here 2 steps of 0.05 on the first convolution, not
+    imitation.adapt's defaults): the parameters training's inner update (`batched.adapt_batch`) makes
+    from the same demo; its unadapted policy is the parameters themselves."""
+    cfg = dataclasses.replace(config.PROFILES["smoke"], alpha=0.05, inner_steps=2, inner_params="conv0")
+    method = methods.of(cfg)
+    net_cfg = dataclasses.replace(method.network_config(8), channels=(3, 4), hidden=(5,))
+    params = {k: v.astype(np.float64) for k, v in method.init_params(net_cfg, rng).items()}
+    demo = (rng.random((3, 8, 8, 3)), rng.normal(size=(3, 6)), rng.normal(size=(3, 2)))
+    adapted = method.conditioner(params)(demo)
+    trained = batched.adapt_batch(params, tuple(a[None] for a in demo), imitation.imitation_loss,
+                                  InnerLoop(alpha=0.05, steps=2, only=("conv0_",)))
+    for k in params:
+        np.testing.assert_allclose(adapted[k], trained[k][0] if k.startswith("conv0_") else trained[k],
+                                   rtol=1e-10, atol=1e-12, err_msg=k)
+    assert np.abs(adapted["conv0_w"] - params["conv0_w"]).max() > 1e-4 and np.array_equal(adapted["fc0_w"], params["fc0_w"])
+    assert method.unadapted(params)(demo) is params

@@ -245,3 +245,14 @@ def test_what_is_not_the_files_fault_is_not_damage(tmp_path, monkeypatch):
         path.write_bytes(content)
         with pytest.raises(npz.Damaged, match=reason):
             npz.read(path)
+
+
+def test_the_checksum_covers_each_arrays_name_dtype_and_shape_not_only_its_bytes():
+    """The same bytes under another name, as another dtype or in another shape: another checksum (a file
+    whose header was rewritten to reinterpret its data must not pass)."""
+    a = np.arange(12, dtype=np.int32)
+    base = npz.checksum({"x": a}, ["x"])
+    assert npz.checksum({"x": a.copy()}, ["x"]) == base
+    for other, name in (({"y": a}, "y"), ({"x": a.reshape(3, 4)}, "x"), ({"x": a.view(np.float32)}, "x"),
+                        ({"x": a.view(np.uint32)}, "x")):
+        assert npz.checksum(other, [name]) != base

@@ -14,7 +14,7 @@ from oneshot.expert.controller import ExpertConfig
 from oneshot.maml import batched, imitation, inner, optim
 from oneshot.policy import network
 from oneshot.training import checkpoint, config, run_data, run_folder, scoring
-from oneshot import evaluate
+from oneshot import evaluate, methods
 from oneshot.methods.mil import INNER_PARAMS, inner_loop
 from oneshot.training import loop
 from oneshot.world.reach import WorldConfig
@@ -552,3 +552,61 @@ def test_adam_receives_the_meta_gradient_clipped_to_cfg_clip(monkeypatch):
     assert len(seen) == 2 and all(np.all(g["w"] == 10.0) for g in seen)
     _, _, seen = _stub_run(monkeypatch, 1e3, ema=0.0, eval_every=0, clip=0.0)      # 0: off
     assert all(np.all(g["w"] == 1e3) for g in seen)
+
+
+def _untrained_checkpoint(tiny, path, method):
+    """A checkpoint of `method`'s initial parameters for the tiny datasets' world, a narrow network (no
+    training, and fast to adapt)."""
+    cfg = dataclasses.replace(tiny, method=method, channels=(4, 4, 4), hidden=(8,))
+    rng = np.random.default_rng(0)
+    net_cfg = methods.of(cfg).network_config(32)
+    params = methods.of(cfg).init_params(net_cfg, rng)
+    world = datasets.load(tiny.train_data)["metadata"]["world"]
+    checkpoint.save(path, params, optim.adam_init(params), 0, rng, cfg, net_cfg, world=world)
+    return str(path), params
+
+
+def test_evaluate_passes_its_seed_and_scenes_to_every_run_and_unadapted_means_the_parameters_as_they_are(
+        tiny, tmp_path, monkeypatch):
+    """What evaluate asks of `one_shot_success` (recorded, not run): with --seed 5 --demo-scenes --unadapted,
+    the adapted and the unadapted runs both use seed 5 and the demos' scenes; the unadapted condition gives
+    the checkpoint's parameters for any demo, the adapted one eq. (1)'s. A random policy's torques are
+    drawn from --seed (`conditioner(params, seed)`)."""
+    calls = []
+
+    def recorded(condition, dataset, trials, seed, **options):
+        calls.append((condition, trials, seed, options))
+        n = len(dataset["task_colours"])
+        return {"successes": 0, "trials": n * trials, "rate": 0.0, "failures": {"near_miss": n * trials, "wrong_object": 0},
+                "per_colour": {int(c): 0.0 for c in dataset["task_colours"]}}
+    monkeypatch.setattr(imitation, "one_shot_success", recorded)
+    monkeypatch.setattr(evaluate, "adaptation_gain", lambda *a: {"before": 1.0, "after": 0.5, "pairs": 1})
+    heldout = datasets.load(tiny.validation_data)
+    demo = tuple(a[0, 0] for a in imitation.prepare_demos(heldout["images"], heldout["states"], heldout["actions"], 0.5))
+    ckpt, params = _untrained_checkpoint(tiny, tmp_path / "mil.npz", "mil")
+    evaluate.main([ckpt, "--validation", tiny.validation_data, "--train", "", "--trials", "2", "--seed", "5",
+                   "--demo-scenes", "--unadapted"])
+    assert [(trials, seed, options.get("demo_scenes")) for _, trials, seed, options in calls] == [(2, 5, True)] * 2
+    adapted, unadapted = calls[0][0](demo), calls[1][0](demo)
+    assert all(np.array_equal(unadapted[k], params[k]) for k in params)
+    assert np.abs(adapted["conv0_w"] - params["conv0_w"]).max() > 0
+    calls.clear()
+    ckpt, params = _untrained_checkpoint(tiny, tmp_path / "random.npz", "random")
+    evaluate.main([ckpt, "--validation", tiny.validation_data, "--train", "", "--trials", "2", "--seed", "5"])
+    (condition, _, seed, _), = calls
+    std = float(params["std"][0])
+    assert seed == 5 and std > 0
+    np.testing.assert_allclose(condition(demo)(None, None, None), std * np.random.default_rng(5).standard_normal((1, 2)),
+                               rtol=1e-6)
+
+
+def test_wilson_intervals_are_probabilities_that_hold_the_rate():
+    """For every count of 0..n successes in n = 1..150 trials: 0 <= lo <= hi <= 1 (unclamped, rounding
+    gives lo = -3e-17 at 0 of 5 trials and hi = 1.0000000000000002 at 5 of 5), and lo <= rate <= hi
+    between the ends; no trials: nothing is known, (0, 1)."""
+    for n in range(1, 151):
+        for s in range(n + 1):
+            lo, hi = scoring.wilson_interval(s, n)
+            assert 0.0 <= lo <= hi <= 1.0, (s, n)
+            assert s in (0, n) or lo <= s / n <= hi, (s, n)
+    assert scoring.wilson_interval(0, 0) == (0.0, 1.0)
