@@ -612,12 +612,11 @@ def test_wilson_intervals_are_probabilities_that_hold_the_rate():
     assert scoring.wilson_interval(0, 0) == (0.0, 1.0)
 
 
-@pytest.mark.xfail(strict=True, reason="known bug: rounding puts the Wilson bound one ulp inside the observed rate at "
-                                       "all or no successes, e.g. wilson_interval(6, 6)[1] == 0.9999999999999999")
 def test_wilson_intervals_hold_the_rate_at_all_and_at_no_successes():
     """At s = n the upper bound is exactly 1 and at s = 0 the lower bound exactly 0 (the Wilson bounds at
-    p = 1 and p = 0), so the interval holds the observed rate; evaluate's `lo <= rate <= hi` assertion
-    (test_evaluate_command_counts_trials_and_uses_new_scenes) fails for a policy that wins 6 of 6."""
+    p = 1 and p = 0), so the interval holds the observed rate (rounding had put wilson_interval(6, 6)[1]
+    at 0.9999999999999999: evaluate's `lo <= rate <= hi` check failed for a policy that won 6 of 6)."""
     for n in range(1, 151):
         assert scoring.wilson_interval(n, n)[1] >= 1.0, n
         assert scoring.wilson_interval(0, n)[0] <= 0.0, n
+        assert all(lo <= s / n <= hi for s in range(n + 1) for lo, hi in [scoring.wilson_interval(s, n)]), n

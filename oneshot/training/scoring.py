@@ -13,13 +13,15 @@ from oneshot.world import palette
 
 
 def wilson_interval(successes, trials, z=1.96):
-    """95% Wilson score interval (lo, hi) for a success rate."""
+    """95% Wilson score interval (lo, hi) for a success rate. It always holds the observed rate; at no
+    or all successes rounding put its end one ulp inside it (wilson_interval(6, 6)[1] was
+    0.9999999999999999), so the ends are held to the rate."""
     if trials == 0:
         return 0.0, 1.0
     p = successes / trials
     centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
     half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
-    return max(0.0, centre - half), min(1.0, centre + half)
+    return min(p, max(0.0, centre - half)), max(p, min(1.0, centre + half))
 
 
 def colour_breakdown(result, trials_per_colour, metadata):
