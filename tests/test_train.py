@@ -620,3 +620,13 @@ def test_wilson_intervals_hold_the_rate_at_all_and_at_no_successes():
         assert scoring.wilson_interval(n, n)[1] >= 1.0, n
         assert scoring.wilson_interval(0, n)[0] <= 0.0, n
         assert all(lo <= s / n <= hi for s in range(n + 1) for lo, hi in [scoring.wilson_interval(s, n)]), n
+
+
+def test_the_progress_bar_keeps_the_last_meta_loss_between_logs(tiny, tmp_path, capsys):
+    """The bar shows the latest logged meta-loss on every update, not only on the iterations that log it
+    (it appeared and vanished every `log_every` iterations)."""
+    run_folder.train(dataclasses.replace(tiny, iterations=6, log_every=3), tmp_path / "run", progress=True)
+    frames = [f for f in capsys.readouterr().err.split("\r") if "meta-training" in f and "/6 " in f]
+    counts = [int(f.split("|")[2].split("/")[0]) for f in frames]
+    assert max(counts) == 6 and any(c > 3 for c in counts)
+    assert all("meta_loss=" in f for f, c in zip(frames, counts) if c >= 3)

@@ -144,13 +144,15 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
     saved = state.iteration if resume else None   # the iteration of the checkpoint on disk, if any
     finished = state                              # the state after the last whole iteration
     bar = tqdm(total=cfg.iterations, initial=state.iteration, desc="meta-training", disable=not progress)
+    shown = {}
     try:
         with files.open_write(log_path) as log:
             for finished, records in loop.steps(method, cfg, state, demos, end, validation_set, pool):
                 for record in records:
                     _log(log, dict(record, seconds=seconds()) if "meta_loss" in record else record)
-                bar.set_postfix({k: f"{v:.3f}" for r in records for k, v in r.items()
-                                 if k in ("meta_loss", "validation_success")}, refresh=False)
+                shown.update({k: f"{v:.3f}" for r in records for k, v in r.items()     # the latest of each,
+                              if k in ("meta_loss", "validation_success")})                # kept between logs
+                bar.set_postfix(shown, refresh=False)
                 bar.update()
                 if finished.iteration % cfg.checkpoint_every == 0 or finished.iteration == end:
                     save(finished)
