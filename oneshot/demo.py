@@ -61,13 +61,15 @@ def shown_trials(successes, n_shown=SHOWN_COLOURS):
 
 
 def contrast_trial(adapted, unadapted):
-    """The trial the animation shows: the first where the policy reached the target after adapting and
-    went to a distractor before it, else the first where adapting turned any miss into a success, else
-    the first success after adapting, else the first trial. adapted, unadapted: (colours, trials)
-    `outcome` strings of the same scenes. Returns (colour, trial) indices."""
+    """The trial the animation shows: the first where the policy reached the target after adapting and,
+    before adapting, went to a distractor (or passed the target and left it: LEFT), else the first where
+    adapting turned any miss into a success, else the first success after adapting, else the first
+    trial. adapted, unadapted: (colours, trials) `outcome` strings of the same scenes. Returns (colour,
+    trial) indices."""
     adapted, unadapted = np.asarray(adapted), np.asarray(unadapted)
     reached = adapted == "reached"
-    for candidates in (reached & (unadapted == DISTRACTOR), reached & (unadapted != "reached"), reached):
+    elsewhere = np.isin(unadapted, (DISTRACTOR, LEFT))
+    for candidates in (reached & elsewhere, reached & (unadapted != "reached"), reached):
         if candidates.any():
             return tuple(int(v) for v in np.argwhere(candidates)[0])
     return 0, 0
@@ -216,7 +218,8 @@ def main(argv=None):
     gif = os.path.join(args.out, "one_shot_trial.gif")
     viz.save_gif(animation(world.config, demo_list[i], *trials[i, j]), gif)
     name = palette.colour_name(list(demos)[i], world.config.palette)
-    print(f"wrote {gif} ({name}, trial {j + 1} of {args.trials}: the demo, and the policy before and after adapting in the same new scene)")
+    print(f"wrote {gif} ({name}, trial {j + 1} of {args.trials}: the demo, and the policy before and after "
+          f"adapting in the same new scene)")
     return {"successes": wins, "trials": n, "unadapted_successes": base_wins}
 
 

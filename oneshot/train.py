@@ -132,8 +132,8 @@ def main(argv=None):
                 f"training {cfg.iterations - start} meta-iteration{'s' * (cfg.iterations - start != 1)}"
                 + (f" (from {start})" if start else ""))
         settings = "the run's own settings" if args.resume and args.profile is None else f"profile {profile}"
-        print(f"{work}: {settings}, seed {cfg.seed}, into {os.path.join(run, 'checkpoint.npz')} "
-              f"(Ctrl-C saves it; --resume continues)")
+        print(f"{work}: {settings}, seed {cfg.seed}, into {os.path.join(run, 'checkpoint.npz')}"
+              + (" (Ctrl-C saves it; --resume continues)" if method.learns else ""))
     if method.describe():
         print(method.describe())
     host.tune_malloc()

@@ -67,7 +67,8 @@ def written_commands():
     found = [(path, _unwrap(text) if path.endswith(".md") else text) for path, text in found]
     for path in glob.glob(os.path.join(ROOT, "notebooks", "**", "*.ipynb"), recursive=True):
         with open(path, encoding="utf-8") as f:
-            found.append((path, "\n".join("".join(c["source"]) for c in json.load(f)["cells"])))
+            found.append((path, "\n".join(_unwrap("".join(c["source"])) if c["cell_type"] == "markdown"
+                                           else "".join(c["source"]) for c in json.load(f)["cells"])))
     return [(f"{os.path.relpath(path, ROOT)}: python -m {m.group(1)}{m.group(2)}", m.group(1), m.group(2).split())
             for path, text in found for m in WRITTEN.finditer(text)]
 

@@ -19,7 +19,7 @@ from oneshot.world.scene import Scene
 gymnasium = pytest.importorskip("gymnasium")    # the optional extra: pip install ".[gym]"
 from gymnasium.utils.env_checker import check_env
 
-from oneshot.world.gym import ENV_ID, RENDER_SCALE, ReachEnv
+from oneshot.world.gym import ENV_ID, RENDER_SCALE, ReachEnv, state_bounds
 
 CHECKOUT = str(Path(oneshot.__file__).resolve().parent.parent)   # where this test imports oneshot from
 WORLD_KEYS = ("image", "joint_angles", "joint_velocities", "end_effector")
@@ -330,7 +330,6 @@ def test_the_state_bounds_come_from_the_smallest_eigenvalue_of_the_mass_matrix()
     mass matrix (the inverse of the dynamics' own M^-1) over elbow angles: |qd| <= |u| t / lambda_min and
     |q| <= |q0| + 8 start_noise + |u| t^2 / (2 lambda_min), |u| = sqrt(2) max_torque, t = T dt. For the
     default arm, the docstring's 744 rad/s and pi/2 + 372 rad."""
-    from oneshot.world.gym import state_bounds
     for config in (WorldConfig(), WorldConfig(horizon=10, start_noise=0.05, arm=arm.ArmConfig(m2=0.3, max_torque=0.8))):
         a = config.arm
         lam = min(np.linalg.eigvalsh(np.linalg.inv(np.array([[i11, i12], [i12, i22]]))).min()

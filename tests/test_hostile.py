@@ -18,6 +18,8 @@ import pytest
 
 from oneshot import demo
 from oneshot.benchmark import __main__ as benchmark
+from oneshot.exercises import __main__ as exercises
+from oneshot.experiments import __main__ as experiments
 from oneshot.data import collection, datasets
 from oneshot.expert.controller import ExpertConfig
 from oneshot.maml import inner, optim, shards
@@ -727,8 +729,6 @@ def test_run_keeps_a_failed_workers_report_after_the_one_line(capsys):
 # --- a newcomer's first mistakes: each refused in one line that names the fix ---------------------------
 
 def test_a_newcomers_first_mistakes_are_named_with_their_fix(capsys, tmp_path):
-    from oneshot.exercises import __main__ as exercises
-    from oneshot.experiments import __main__ as experiments
     grader = lambda argv: sys.exit(exercises.main(argv))            # as its __main__ runs it
     (tmp_path / "alice.py").write_text("def is_success(e, t, r=0.05):\n    return True\n")
     for main, argv, words in (

@@ -10,6 +10,7 @@ from autograd import grad
 
 from helpers import assert_batched_equals_loop
 from oneshot import methods
+from oneshot.expert import controller
 from oneshot.maml import batched, imitation, inner
 from oneshot.policy import network
 from oneshot.maml.inner import InnerLoop
@@ -250,7 +251,6 @@ def test_a_rollouts_policy_sees_what_prepare_demos_makes_of_a_recorded_demo_and_
     """At meta-test the policy gets the units it was trained on: in the same scene, its first observation is
     prepare_demos' first frame of the expert's recorded demonstration (image in [0, 1], state / STATE_SCALE),
     and its action, in units of the torque bound, reaches the world multiplied by it (N m)."""
-    from oneshot.expert import controller
     world = ReachWorld(WorldConfig(split="validation"))
     demo = controller.demonstrate(world, seed=4)
     images, states, _ = imitation.prepare_demos(demo["images"], demo["states"], demo["actions"],

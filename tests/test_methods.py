@@ -182,7 +182,7 @@ def test_parameter_count_is_what_init_params_builds_for_every_profile_and_line()
 
 def test_the_mil_methods_meta_test_adapts_with_its_configs_inner_loop(rng):
     """MIL.conditioner is eq. (1) as the config sets it (here 2 steps of 0.05 on the first convolution, not
-    imitation.adapt's defaults): the parameters training's inner update (`batched.adapt_batch`) makes
+    the paper's 3 of 0.001 on every parameter): the parameters training's inner update (`batched.adapt_batch`) makes
     from the same demo; its unadapted policy is the parameters themselves."""
     cfg = dataclasses.replace(config.PROFILES["smoke"], alpha=0.05, inner_steps=2, inner_params="conv0")
     method = methods.of(cfg)

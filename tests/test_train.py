@@ -600,26 +600,22 @@ def test_evaluate_passes_its_seed_and_scenes_to_every_run_and_unadapted_means_th
                                rtol=1e-6)
 
 
-def test_wilson_intervals_are_probabilities_that_hold_the_rate():
-    """For every count of 0..n successes in n = 1..150 trials: 0 <= lo <= hi <= 1 (unclamped, rounding
-    gives lo = -3e-17 at 0 of 5 trials and hi = 1.0000000000000002 at 5 of 5), and lo <= rate <= hi
-    between the ends; no trials: nothing is known, (0, 1)."""
+def test_wilson_intervals_are_the_roots_of_the_score_equation_and_hold_the_rate():
+    """For every count of 0..n successes in n = 1..150 trials, the interval is the set of rates p whose
+    score test accepts s/n: the roots of (s/n - p)^2 = z^2 p (1 - p) / n, a quadratic in p solved here by
+    numpy.roots (an independent reference); and it holds the rate exactly, 0 <= lo <= s/n <= hi <= 1
+    (rounding had put the upper end of 6 of 6 at 0.9999999999999999 and the lower of 0 of 5 at -3e-17:
+    evaluate's `lo <= rate <= hi` check failed for a policy that won 6 of 6). No trials: (0, 1)."""
+    z = 1.96
     for n in range(1, 151):
         for s in range(n + 1):
-            lo, hi = scoring.wilson_interval(s, n)
-            assert 0.0 <= lo <= hi <= 1.0, (s, n)
-            assert s in (0, n) or lo <= s / n <= hi, (s, n)
+            lo, hi = scoring.wilson_interval(s, n, z)
+            rate = s / n
+            roots = np.sort(np.roots([1 + z * z / n, -(2 * rate + z * z / n), rate * rate]).real)
+            np.testing.assert_allclose([lo, hi], roots, atol=1e-12, err_msg=f"{s} of {n}")
+            assert 0.0 <= lo <= rate <= hi <= 1.0, (s, n)
+    assert scoring.wilson_interval(6, 6)[1] == 1.0 and scoring.wilson_interval(0, 5)[0] == 0.0
     assert scoring.wilson_interval(0, 0) == (0.0, 1.0)
-
-
-def test_wilson_intervals_hold_the_rate_at_all_and_at_no_successes():
-    """At s = n the upper bound is exactly 1 and at s = 0 the lower bound exactly 0 (the Wilson bounds at
-    p = 1 and p = 0), so the interval holds the observed rate (rounding had put wilson_interval(6, 6)[1]
-    at 0.9999999999999999: evaluate's `lo <= rate <= hi` check failed for a policy that won 6 of 6)."""
-    for n in range(1, 151):
-        assert scoring.wilson_interval(n, n)[1] >= 1.0, n
-        assert scoring.wilson_interval(0, n)[0] <= 0.0, n
-        assert all(lo <= s / n <= hi for s in range(n + 1) for lo, hi in [scoring.wilson_interval(s, n)]), n
 
 
 def test_the_progress_bar_keeps_the_last_meta_loss_between_logs(tiny, tmp_path, capsys):

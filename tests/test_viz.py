@@ -131,6 +131,8 @@ def test_the_animation_prefers_a_scene_where_adapting_made_the_difference():
     assert demo.contrast_trial(adapted, np.array([[reached, near], [reached, wrong], [reached, reached]])) == (0, 1)
     assert demo.contrast_trial(adapted, np.full((3, 2), reached)) == (0, 0)
     assert demo.contrast_trial(np.full((3, 2), wrong), np.full((3, 2), wrong)) == (0, 0)
+    # an unadapted arm that passed the target and left it counts as going elsewhere, as a distractor does
+    assert demo.contrast_trial(adapted, np.array([[reached, near], [demo.LEFT, reached], [reached, wrong]])) == (1, 0)
 
 
 def test_outcomes_say_where_the_arm_stopped_by_distance_not_only_by_the_closest_disc():

@@ -89,7 +89,8 @@ def _check(args):
     if verdict == "correct":
         print(f"exercise {args.number} ({exercise.title}): correct")
         return 0
-    print(f"exercise {args.number}: {verdict if verdict.startswith(('not yet', 'not written', 'flagged')) else 'not yet: ' + verdict}")
+    said = verdict if verdict.startswith(("not yet", "not written", "flagged")) else "not yet: " + verdict
+    print(f"exercise {args.number}: {said}")
     return 1
 
 

@@ -26,8 +26,9 @@ _expected, _lock = {}, threading.Lock()
 
 @dataclass
 class Graded:
-    """One submission's grade: `verdicts` {exercise: "correct" | "missing" | "not written: ..." | "not yet: ..."
-    | "flagged: ..." | "timed out ..." | "crashed ..."} (the first three not attempted), or `load_error` when its code could not load; `notes` on its
+    """One submission's grade: `verdicts` {exercise: "correct" | "missing" | "not written: ..." |
+    "not yet: ..." | "flagged: ..." | "timed out ..." | "crashed ..."} (missing and not written count as
+    not attempted), or `load_error` when its code could not load; `notes` on its
     notebook cells that failed."""
     label: str
     numbers: list
