@@ -96,3 +96,11 @@ def test_collect_benchmark_takes_at_least_two_demos_per_colour(monkeypatch):
 def test_privileged_benchmark_refuses_data_of_another_split(tiny_split_datasets):
     with pytest.raises(datasets.DatasetError, match="holds validation colours, not meta-training colours"):
         privileged.bench_privileged("colour", 1, trials=1, train_data=tiny_split_datasets["validation"])
+
+
+def test_the_expert_benchmark_counts_its_successes():
+    """`benchmark expert` reports the count of scenes the expert reached (500/500 reads better than 1.0),
+    and the rate it makes."""
+    result = expert.bench_expert(scenes=3)
+    assert result["scenes"] == 3 and isinstance(result["expert_successes"], int)
+    assert result["expert_success_rate"] == result["expert_successes"] / 3

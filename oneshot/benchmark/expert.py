@@ -24,7 +24,7 @@ def bench_expert(scenes=500, seed=0):
         plan_s.append(time.perf_counter() - t0)
         iterations.append(result.iterations)
         successes += controller.demonstrate(world, seed=seed + i)["success"]
-    return {"scenes": scenes, "expert_success_rate": successes / scenes,
+    return {"scenes": scenes, "expert_successes": int(successes), "expert_success_rate": successes / scenes,
             "ilqg_solve_s_median": float(np.median(plan_s)), "ilqg_solve_s_p90": float(np.percentile(plan_s, 90)),
             "ilqg_iterations_median": float(np.median(iterations))}
 
