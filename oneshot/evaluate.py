@@ -135,7 +135,7 @@ def main(argv=None):
             results[f"{split}_unadapted"] = u
         if split == "train":
             continue
-        print(f"{split} colours, by colour: {colour_breakdown(r, args.trials, dataset['metadata'])}")
+        print(_wrapped(f"{split} colours, by colour:", colour_breakdown(r, args.trials, dataset["metadata"]).split("; ")))
         if method.adapts:
             g = adaptation_gain(params, dataset, method.conditioner(params))
             own = " of its own colour" if args.other_colour_demo else ""
@@ -156,6 +156,20 @@ def main(argv=None):
         with files.atomic_write(args.json) as f:             # never half a file
             f.write(json.dumps(written, indent=1).encode())
     return results
+
+
+
+def _wrapped(head, items, width=100):
+    """`head` and `items` joined by "; " on lines of at most `width` characters (unless one item is
+    longer), each item whole, the continuation lines indented: 48 colours made one line of 2,000."""
+    lines = [head]
+    for k, item in enumerate(items):
+        piece = item + (";" if k < len(items) - 1 else "")
+        if len(lines[-1]) + 1 + len(piece) > width and lines[-1] != head:
+            lines.append("  " + piece)
+        else:
+            lines[-1] += " " + piece
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

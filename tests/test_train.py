@@ -298,7 +298,11 @@ def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, caps
     assert sum(r["failures"].values()) == r["trials"] - r["successes"]   # every failure gets a kind
     printed = capsys.readouterr().out
     assert "validation colours: one-shot success" in printed
-    by_colour = next(line for line in printed.splitlines() if line.startswith("validation colours, by colour: "))
+    lines = printed.splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith("validation colours, by colour: "))
+    block = [lines[first], *itertools.takewhile(lambda line: line.startswith("  "), lines[first + 1:])]
+    by_colour = " ".join(line.strip() for line in block)
+    assert all(len(line) <= 100 for line in block)                              # wrapped for a terminal
     counts = [item.split()[-1].split("/") for item in by_colour.split(": ", 1)[1].split("; ")]
     assert len(counts) == 2 and all(t == "3" for _, t in counts)            # 2 colours, 3 trials each
     assert sum(int(s) for s, _ in counts) == r["successes"]
@@ -626,3 +630,14 @@ def test_the_progress_bar_keeps_the_last_meta_loss_between_logs(tiny, tmp_path, 
     counts = [int(f.split("|")[2].split("/")[0]) for f in frames]
     assert max(counts) == 6 and any(c > 3 for c in counts)
     assert all("meta_loss=" in f for f, c in zip(frames, counts) if c >= 3)
+
+
+def test_evaluate_wraps_the_per_colour_line_between_colours():
+    """48 colours on lines of at most 100 characters, each "hue ... k/n" whole, nothing lost or added."""
+    items = [f"hue {h:.2f} deg {h % 11:.0f}/10" for h in np.arange(48) * 7.5]
+    text = evaluate._wrapped("test colours, by colour:", items)
+    lines = text.splitlines()
+    assert len(lines) > 5 and all(len(line) <= 100 for line in lines)
+    assert all(line.startswith("  hue") for line in lines[1:])
+    assert " ".join(line.strip() for line in lines) == "test colours, by colour: " + "; ".join(items)
+    assert evaluate._wrapped("head:", ["x" * 120, "y"]) == "head: " + "x" * 120 + ";\n  y"   # too long: alone
