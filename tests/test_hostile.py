@@ -7,6 +7,7 @@ import dataclasses
 import json
 import os
 import pathlib
+import shlex
 import signal
 import subprocess
 import sys
@@ -693,6 +694,25 @@ def test_a_full_disk_is_named_with_what_to_do(capsys, filename):
     line, _ = refused(capsys, main, [], 1)
     assert line.startswith("error: the disk is full (no space left on device") and "free some space" in line
     assert (f"for {filename!r}" in line) == (filename is not None)
+
+
+def test_out_of_memory_says_to_ask_for_less(capsys):
+    def main(argv):
+        raise MemoryError("Unable to allocate 21.3 GiB for an array")
+    line, _ = refused(capsys, main, [], 1)
+    assert line.startswith("error: out of memory") and "a smaller --meta-batch" in line
+
+
+def test_a_reader_that_goes_away_ends_the_command_quietly(tmp_path):
+    """`python -m oneshot.exercises list | head -1`: exit 141 as `cat` would, no traceback or error line
+    (it said `error: [Errno 32] Broken pipe`)."""
+    script = ("import sys\nfrom oneshot.tools import cli\n"
+              "def main(argv):\n    for _ in range(100000):\n        print('line of output ' * 4)\n"
+              "sys.exit(cli.run(main))\n")
+    done = subprocess.run(f"{shlex.quote(sys.executable)} -c {shlex.quote(script)} | head -1", shell=True,
+                          capture_output=True, text=True, cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                          timeout=60, executable="/bin/bash")
+    assert done.stdout.startswith("line of output") and done.stderr == "", done.stderr
 
 
 def test_run_keeps_the_traceback_of_a_bug():

@@ -210,7 +210,8 @@ def run(main, argv=None, failures=()):
              bad input; the message says what and how to fix it
         1    the `failures` types (e.g. loop.TrainingDiverged, shards.ShardError) and other OSError;
              lines after the first of their message (a worker's traceback) are printed after it; a full
-             disk (ENOSPC) says so and what to do
+             disk (ENOSPC) says so and what to do; MemoryError says to ask for less
+        141  stdout's reader went away (a broken pipe, `| head`): nothing is printed
         130  KeyboardInterrupt ("interrupted", or its message: e.g. where training saved its checkpoint);
              a plain kill (SIGTERM) is handled as Ctrl-C
     Anything else is a bug, and keeps its traceback.
@@ -222,6 +223,12 @@ def run(main, argv=None, failures=()):
         _exit(str(e) or "interrupted", 130)
     except BAD_INPUT as e:
         _exit(" ".join(_lines(e)), 2)
+    except BrokenPipeError:                    # its reader went away (`... | head`): stop quietly, as `cat` does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())     # (no flush error at exit)
+        raise SystemExit(141)
+    except MemoryError:                        # NumPy could not allocate what was asked (a checked size is refused earlier)
+        _exit("out of memory: this machine cannot hold what was asked; ask for less (a smaller --meta-batch or "
+              "--inner-steps, fewer --workers)", 1)
     except OSError as e:
         if e.errno == errno.ENOSPC and not isinstance(e, failures):   # say what to do, not just the errno
             _exit(f"the disk is full (no space left on device{' for ' + repr(e.filename) if e.filename else ''}); "
