@@ -434,7 +434,11 @@ def test_cli_sizes_sweeps_one_point_first_into_files_of_its_own(tmp_path, capsys
     (["fig2", "--profile", "huge"], "invalid choice: 'huge'"),
     (["fig2", "--workers", "0"], "argument --workers: expected a whole number >= 1"),
     (["fig2", "--workers", "2", "--local-cluster", "2"], "not allowed with argument"),
-    (["fig2", "--local-cluster", "0"], "--local-cluster must be >= 1"),
+    (["fig2", "--local-cluster", "0"], "argument --local-cluster: this machine has"),
+    (["fig2", "--local-cluster", "100000"], "1 to that many workers (a cluster of more machines: --scheduler); "
+                                            "got 100000"),
+    (["fig2", "--profile", "tiny", "--work", "w", "--out", "w"], "argument --out: w is in the sweep's work folder w"),
+    (["fig2", "--profile", "tiny", "--work", "w", "--out", "w/results"], "is in the sweep's work folder"),
     (["fig3"], "invalid choice: 'fig3'"),
 ])
 def test_cli_argument_errors_are_one_line_and_status_2(argv, message, capsys):

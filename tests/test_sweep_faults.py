@@ -97,6 +97,15 @@ def test_a_damaged_runs_csv_is_named_with_its_line(tmp_path, text, says):
         sweep_rows.read_rows(path)
 
 
+@pytest.mark.parametrize("data", [b"\xa7\x00\xff binary", (",".join(sweep_rows.COLUMNS) + "\n").encode() + b"\xa7\xff\n"])
+def test_a_runs_csv_that_is_not_text_is_named_with_the_fix(tmp_path, data):
+    """It said "'utf-8' codec can't decode byte 0xa7 in position 0", naming neither the file nor a fix."""
+    path = tmp_path / "runs.csv"
+    path.write_bytes(data)
+    with pytest.raises(ValueError, match=f"{path} is not a runs.csv \\(it is not text\\); move the file away"):
+        sweep_rows.read_rows(path)
+
+
 SWEEP_SCRIPT = """
 import signal, sys, time
 sys.path.insert(0, {tests!r})

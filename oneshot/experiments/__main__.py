@@ -134,8 +134,9 @@ def main(argv=None):
         return _summarise(args.results, argv)
     if args.experiment == "seeds":
         return _seeds(args.evaluations, args.out, argv)
-    if args.local_cluster is not None and args.local_cluster < 1:
-        f.error(f"--local-cluster must be >= 1; got {args.local_cluster}")
+    if args.local_cluster is not None and not 1 <= args.local_cluster <= (os.cpu_count() or 1):
+        f.error(f"argument --local-cluster: this machine has {os.cpu_count() or 1} cores: 1 to that many workers "
+                f"(a cluster of more machines: --scheduler); got {args.local_cluster}")
     if (args.scheduler or args.local_cluster) and distributed is None:
         f.error(f"{'--scheduler' if args.scheduler else '--local-cluster'} needs Dask: pip install \".[cluster]\"")
     try:
@@ -157,6 +158,9 @@ def main(argv=None):
         check_results_folder(PROFILES[args.profile], out)
     except (argparse.ArgumentTypeError, ValueError) as e:
         f.error(f"argument --out: {e}")
+    if os.path.commonpath([os.path.realpath(out), os.path.realpath(args.work)]) == os.path.realpath(args.work):
+        f.error(f"argument --out: {out} is in the sweep's work folder {args.work} (its runs' folders); "
+                f"name a results folder outside it")
     runs = plan(cfg)
     workers = min(args.workers or 2, os.cpu_count() or 1, len(runs))      # more would only share the cores
     previous = signal.signal(signal.SIGTERM, _interrupt)    # a plain kill stops the sweep as Ctrl-C does

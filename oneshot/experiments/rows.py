@@ -84,10 +84,14 @@ def read_rows(path, fix=None):
         return []
     with open_read(path, "r", newline="") as f:
         reader = csv.DictReader(f)
-        if tuple(reader.fieldnames or ()) != COLUMNS:
-            raise ValueError(f"{path}: columns {reader.fieldnames} are not runs.csv's {list(COLUMNS)}; "
-                             f"{fix or 'move the file away to start the sweep afresh'}")
-        rows = [(reader.line_num, row) for row in reader]
+        try:
+            if tuple(reader.fieldnames or ()) != COLUMNS:
+                raise ValueError(f"{path}: columns {reader.fieldnames} are not runs.csv's {list(COLUMNS)}; "
+                                 f"{fix or 'move the file away to start the sweep afresh'}")
+            rows = [(reader.line_num, row) for row in reader]
+        except UnicodeDecodeError:
+            raise ValueError(f"{path} is not a runs.csv (it is not text); "
+                             f"{fix or 'move the file away to start the sweep afresh'}") from None
     for line, row in rows:
         try:
             if None in row or None in row.values():     # DictReader: extra fields under None, missing ones None
