@@ -347,6 +347,7 @@ def test_cli_grade_survives_wrong_raising_looping_and_broken_submissions(tmp_pat
     (tmp_path / "carol.py").write_text("def is_success(e, t, r=0.05):\n    while True:\n        pass\n" + RIGHT_9)
     (tmp_path / "dave.py").write_text("def is_success(:\n")
     (tmp_path / "erin.py").write_text(RIGHT_9 + "raise RuntimeError('oops at import')\n" + RIGHT_1)
+    (tmp_path / "frank.py").write_text(RIGHT_1 + "while True:\n    pass\n")
     assert main(["grade", str(tmp_path), "--timeout", "3", "--jobs", "4"]) == 0
     lines = capsys.readouterr().out.splitlines()
     verdict = lambda who, n: next(line.split(None, 2)[2] for line in lines if line.split()[:2] == [who, str(n)])
@@ -360,9 +361,11 @@ def test_cli_grade_survives_wrong_raising_looping_and_broken_submissions(tmp_pat
     assert verdict("erin.py", 9) == "correct"                      # defined before the file raised: graded
     assert verdict("erin.py", 1) == ("missing (erin.py raised RuntimeError: oops at import as it loaded, after "
                                      "defining wilson_interval)")
+    assert ("frank.py   -  timed out after 3 s (an endless loop?) while loading (if it only loads slowly, raise "
+            "--timeout)") in lines
     totals = [line.split(None, 2)[2] for line in lines if line.split()[1] == "total"]
     assert totals == ["2/10 correct, 2 attempted", "0/10 correct, 2 attempted", "1/10 correct, 2 attempted",
-                      "0/10 correct, 0 attempted", "1/10 correct, 1 attempted"]
+                      "0/10 correct, 0 attempted", "1/10 correct, 1 attempted", "0/10 correct, 0 attempted"]
     assert main(["grade", str(tmp_path / "nobody")]) == 2
     assert main(["--grade", str(tmp_path)]) == 2                   # one way to grade: a pointer to it
     assert "use python -m oneshot.exercises grade" in capsys.readouterr().err

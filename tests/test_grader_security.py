@@ -261,6 +261,24 @@ def test_memory_is_limited(graded):
     assert verdict("hog.py", 1).startswith("not yet: your is_success raised MemoryError")
 
 
+def test_limits_stay_under_the_graders_own_hard_limits():
+    """Run under `ulimit -v` (a hard address-space limit), `limit` asking for more memory than that keeps
+    the lower limit instead of failing: `--memory 9000` under `ulimit -v 6000000` failed every submission
+    ("not allowed to raise maximum limit"); under no limit it sets what it is asked."""
+    script = ("import resource, sys\n"
+              "hard = int(sys.argv[1])\n"
+              "if hard: resource.setrlimit(resource.RLIMIT_AS, (hard, hard))\n"
+              "from oneshot.exercises import confine\n"
+              "confine.limit(9000 << 20, 5, 50)\n"
+              "print(*resource.getrlimit(resource.RLIMIT_AS))\n")
+    for hard in (6_000_000_000, 0):
+        done = subprocess.run([sys.executable, "-c", script, str(hard)], capture_output=True, text=True, timeout=60,
+                              env=dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parent.parent)))
+        assert done.returncode == 0, done.stderr
+        soft, now = map(int, done.stdout.split())
+        assert soft == now and (soft == hard if hard else 9000 << 20 < soft < (9000 << 20) + (4 << 30)), soft
+
+
 def test_processes_are_limited(graded):
     _, output, _, _ = graded
     line = next(line for line in output.splitlines() if line.startswith("forker.py") and "spawned" in line)

@@ -43,18 +43,29 @@ def landlock_abi():
         return 0
 
 
+def _lower(which, soft, hard):
+    """setrlimit(which, (soft, hard)), each no higher than the hard limit this process already has."""
+    now = resource.getrlimit(which)[1]
+    if now != resource.RLIM_INFINITY:
+        soft, hard = min(soft, now), min(hard, now)
+    resource.setrlimit(which, (soft, hard))
+
+
 def limit(memory_bytes, cpu_seconds, processes, file_bytes=64 << 20, uid=None):
     """Set this process's limits: `memory_bytes` of address space beyond what it maps now, `cpu_seconds`
     of CPU time, `processes` more processes or threads than user `uid` (default: ours) has now, files
-    of at most `file_bytes` (a bigger write fails with OSError, instead of SIGXFSZ killing the process)."""
+    of at most `file_bytes` (a bigger write fails with OSError, instead of SIGXFSZ killing the process).
+    A limit the grader itself runs under (`ulimit`) is kept where it is lower: a process may not raise
+    its hard limit, and asking to (`--memory 9000` under `ulimit -v 6000000`) failed every submission."""
     with open("/proc/self/status") as f:
         mapped = next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmSize:"))
     cpu = max(1, int(cpu_seconds + 0.999))
-    resource.setrlimit(resource.RLIMIT_AS, (mapped + memory_bytes,) * 2)
-    resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu + 1))
-    resource.setrlimit(resource.RLIMIT_NPROC, (tasks_of(os.getuid() if uid is None else uid) + processes,) * 2)
-    resource.setrlimit(resource.RLIMIT_FSIZE, (file_bytes,) * 2)
-    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    _lower(resource.RLIMIT_AS, mapped + memory_bytes, mapped + memory_bytes)
+    _lower(resource.RLIMIT_CPU, cpu, cpu + 1)
+    processes = tasks_of(os.getuid() if uid is None else uid) + processes
+    _lower(resource.RLIMIT_NPROC, processes, processes)
+    _lower(resource.RLIMIT_FSIZE, file_bytes, file_bytes)
+    _lower(resource.RLIMIT_CORE, 0, 0)
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 
 

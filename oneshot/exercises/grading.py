@@ -131,8 +131,9 @@ def grade_submission(path, numbers, limits=Limits(), hidden=()):
                    "channel": "wrote into the grader's channel (only the sandbox may)",
                    }.get(ending, f"crashed Python ({why})")
         if not loaded:
-            graded.load_error = (f"{trouble} while loading" if ending != "crash" else
-                                 f"crashed while loading ({why})")
+            slow = " (if it only loads slowly, raise --timeout)" if ending == "timeout" else ""
+            graded.load_error = (f"crashed while loading ({why})" if ending == "crash" else
+                                 f"{trouble} while loading{slow}")
             return graded
         graded.verdicts[pending.pop(0)] = trouble           # the exercise it was on; a new sandbox does the rest
     return graded
