@@ -369,7 +369,19 @@ def test_a_run_folder_that_is_a_file_is_refused(capsys, tmp_path, tiny_cfg):
     (tmp_path / "run").write_text("")
     line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"),
                                            "--train-data", tiny_cfg.train_data, "--validation-data", tiny_cfg.validation_data])
-    assert "is a file, not a folder" in line and line.startswith("error: argument --run")
+    assert "is a file, not a folder; choose another path" in line and line.startswith("error: argument --run")
+
+
+@pytest.mark.parametrize("link", ["nowhere", "loop"])
+def test_a_run_folder_that_is_a_link_to_nothing_is_refused(capsys, tmp_path, tiny_cfg, link):
+    """A dangling symbolic link, or a loop of links, as --run: it said `[Errno 17] File exists`."""
+    run = tmp_path / "run"
+    run.symlink_to(tmp_path / "missing" if link == "nowhere" else run)
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(run / "inner"),
+                                           "--train-data", tiny_cfg.train_data, "--validation-data", tiny_cfg.validation_data])
+    assert line.startswith("error: argument --run") and f"{str(run)!r} is a symbolic link to nothing (or a loop of " \
+                                                           f"links); remove it, or choose another path" in line
+    assert run.is_symlink() and not (tmp_path / "missing").exists()
 
 
 def test_resume_removes_what_a_killed_checkpoint_write_left(tmp_path, tiny_cfg):

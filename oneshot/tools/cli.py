@@ -140,6 +140,9 @@ def _check_folder(folder, path):
     """Raise ArgumentTypeError unless `folder` is, or can be created as, a folder that takes new files."""
     existing = folder
     while not os.path.exists(existing):                  # the nearest existing ancestor
+        if os.path.lexists(existing):                    # a link that leads nowhere: mkdir would fail on it
+            raise argparse.ArgumentTypeError(f"cannot write {path!r}: {existing!r} is a symbolic link to nothing "
+                                             f"(or a loop of links); remove it, or choose another path")
         existing = os.path.dirname(existing)
     name_max = os.pathconf(existing, "PC_NAME_MAX") if os.path.isdir(existing) else 255
     too_long = [part for part in os.path.relpath(folder, existing).split(os.sep) if len(os.fsencode(part)) > name_max]
@@ -148,7 +151,8 @@ def _check_folder(folder, path):
                f"may have here" if too_long else "the path is longer than this system allows"
         raise argparse.ArgumentTypeError(f"cannot write {path!r}: {what}; choose a shorter path")
     if not os.path.isdir(existing):
-        raise argparse.ArgumentTypeError(f"cannot write {path!r}: {existing!r} is a file, not a folder")
+        raise argparse.ArgumentTypeError(f"cannot write {path!r}: {existing!r} is a file, not a folder; choose "
+                                         f"another path")
     try:                                                 # try it: os.access says yes to root on a
         tempfile.TemporaryFile(dir=existing).close()     # read-only file system
     except OSError as e:
