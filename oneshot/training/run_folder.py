@@ -109,7 +109,8 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
     ckpt_path, log_path = os.path.join(run_dir, "checkpoint.npz"), os.path.join(run_dir, "log.jsonl")
     ckpt = _resumable(cfg, ckpt_path) if resume else None    # before any data is collected for it
     if not resume and os.path.exists(ckpt_path):
-        raise FileExistsError(f"{run_dir!r} already holds a run; use --resume, or another --run folder")
+        raise FileExistsError(f"{run_dir!r} already holds a run; use --resume, or another --run folder (or move "
+                              f"its checkpoint.npz aside to start afresh)")
     # 1. Data: both splits, in network units (images in [0, 1], states and torques of order one).
     train_set, validation_set = run_data.ensure(cfg, progress=progress)
     train_set = run_data.subset(train_set, cfg.tasks, cfg.demos)
