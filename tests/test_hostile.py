@@ -135,6 +135,23 @@ def test_train_refuses_a_meta_batch_larger_than_memory(capsys, tmp_path):
     nothing_written(tmp_path)                                     # no dataset collected either
 
 
+@pytest.mark.parametrize("flag, value", [("--meta-batch", "1000"), ("--inner-steps", "100000")])
+def test_train_counts_the_activations_of_a_meta_batch_not_only_its_images(capsys, tmp_path, monkeypatch, flag, value):
+    """The smoke profile's meta-batch of 1,000 holds 491 MB of images and about 21 GB of activations: it
+    passed the images-only check and grew until the kernel killed it (or a training process beside it)."""
+    monkeypatch.setattr(cli, "available_memory_bytes", lambda: 8 * 10 ** 9)
+
+    def not_refused(*args, **kwargs):            # never train it here: it would take the machine's memory
+        raise AssertionError("train.main did not refuse the meta-batch before training")
+    monkeypatch.setattr(train, "train", not_refused)
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), flag, value,
+                                           "--train-data", str(tmp_path / "train.npz"),
+                                           "--validation-data", str(tmp_path / "heldout.npz")])
+    assert "the activations the meta-gradient keeps" in line and "8.0 GB is available" in line
+    assert "use a smaller --meta-batch (the profile's: 2) or fewer --inner-steps" in line
+    nothing_written(tmp_path)
+
+
 @pytest.mark.parametrize("argv, says", [
     (["--hidden", "100000000,100000000"], "the mil policy's 10,000,065,000,030,002 parameters"),
     (["--bias-transform", "100000000"], "the mil policy's"),

@@ -14,6 +14,7 @@ import pytest
 
 import oneshot
 from oneshot import evaluate, methods
+from oneshot.benchmark.maml import timed_config
 from oneshot.maml import batched, imitation, inner
 from oneshot.maml.inner import InnerLoop
 from oneshot.methods.base import Method
@@ -197,3 +198,15 @@ def test_the_mil_methods_meta_test_adapts_with_its_configs_inner_loop(rng):
                                    rtol=1e-10, atol=1e-12, err_msg=k)
     assert np.abs(adapted["conv0_w"] - params["conv0_w"]).max() > 1e-4 and np.array_equal(adapted["fc0_w"], params["fc0_w"])
     assert method.unadapted(params)(demo) is params
+
+
+@pytest.mark.parametrize("timed, measured_mb", [("smoke", 21.2), ("default", 10.1),
+                                                ("mil-released+widths-flat+3steps", 27.7), ("lstm", 8.0)])
+def test_a_tasks_memory_estimate_holds_what_a_meta_iteration_was_measured_to_take(timed, measured_mb):
+    """task_bytes, which `train` and the benchmark check a meta-batch against before any work (a meta-batch
+    of 1,000 had grown to 21 GB when the kernel killed it), is above the measured slope of peak memory
+    per task and less than 2.5 times it. Measured on this machine's NumPy with `python -m oneshot.benchmark
+    maml --shards 1 --iterations 2 --meta-batch N` (N = 4 and 16) and `--profile P` or `--line L`."""
+    method = methods.of(timed_config(timed))
+    estimate_mb = method.task_bytes(method.network_config(32), 20) / 2 ** 20
+    assert measured_mb < estimate_mb < 2.5 * measured_mb, estimate_mb

@@ -78,7 +78,7 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, rollo
     whole meta-iteration (shards > 1) and the evaluation rollouts (module docstring)."""
     host.tune_malloc()
     host.blas_threads(1)
-    method, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
+    method, net_cfg, params, rng = bench_setup(profile, image_size, T, **overrides)
     cfg = method.cfg
     if not method.adapts:
         raise ValueError(f"--breakdown times MIL's meta-gradient on frame shards, not the {cfg.method} baseline's: "

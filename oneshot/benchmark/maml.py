@@ -36,9 +36,9 @@ def synthetic_demos(rng, tasks, T, image_size):
             rng.standard_normal((tasks, T, 2), dtype=np.float32))
 
 
-def bench_setup(profile, image_size, **overrides):
+def bench_setup(profile, image_size, T=20, **overrides):
     """(method, net_cfg, params, rng) for timing a profile or line (`timed_config`, with overridden fields)
-    on synthetic data."""
+    on synthetic data of T frames; ValueError if its meta-iteration would not fit in memory."""
     method = methods.of(dataclasses.replace(timed_config(profile), **overrides))
     rng = np.random.default_rng(0)
     net_cfg = method.network_config(image_size)
@@ -46,6 +46,10 @@ def bench_setup(profile, image_size, **overrides):
     cli.check_memory(method.memory_bytes(net_cfg), f"the {method.cfg.method} policy's "
                      f"{method.parameter_count(net_cfg):,} parameters and what a meta-iteration keeps of them",
                      "use a smaller --lstm-units")
+    tasks = method.cfg.meta_batch
+    cli.check_memory(tasks * (2 * T * image_size ** 2 * 3 * 4 + method.task_bytes(net_cfg, T)),
+                     f"a meta-batch of {tasks} tasks ({method.cfg.inner_steps} inner steps: their images and the "
+                     f"activations the meta-gradient keeps)", "use a smaller --meta-batch or fewer --inner-steps")
     return method, net_cfg, method.init_params(net_cfg, rng), rng
 
 
@@ -65,7 +69,7 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
         after its work and slow the other down; run the two commands alternately instead.)
     """
     host.tune_malloc()
-    method, net_cfg, params, rng = bench_setup(profile, image_size, **overrides)
+    method, net_cfg, params, rng = bench_setup(profile, image_size, T, **overrides)
     cfg = method.cfg
     if not method.learns:
         raise ValueError(f"the {cfg.method} policy has no meta-iteration to time")

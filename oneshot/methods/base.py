@@ -57,6 +57,19 @@ class Method:
         parameters, their gradient, Adam's two moments and (cfg.ema > 0) the moving average."""
         return 4 * self.parameter_count(net_cfg) * (4 + (self.cfg.ema > 0))
 
+    def task_bytes(self, net_cfg, frames):
+        """Bytes one task of a meta-batch holds during a meta-iteration, at most about: each forward pass
+        through its `frames` frames (one, or with eq. (1) one per inner step and one after) keeps its
+        activations (`network.activation_floats`, float32) for the gradient, and the backward pass and
+        autograd's bookkeeping as much again and more: 10 bytes a number. Measured, as the slope of peak
+        memory from meta-batch 4 to 16 (`python -m oneshot.benchmark maml --shards 1 --meta-batch N
+        --profile P` or `--line L`), against this: the smoke profile (3 steps) 21 MB a task (42), the
+        default (1 step) 10 MB (21), `mil-released+widths-flat+3steps` 28 MB (34), the LSTM 8.0 MB (10.5).
+        `train` refuses a meta-batch that would not fit (one of 1,000 had grown to 21 GB when the kernel
+        killed it)."""
+        passes = self.cfg.inner_steps + 1 if self.adapts else 1
+        return int(10 * network.activation_floats(net_cfg) * frames * passes)
+
     # --- meta-training ------------------------------------------------------------------------------
 
     @property
