@@ -215,7 +215,7 @@ def test_an_npy_header_claiming_a_giant_shape_is_refused_before_reading(tmp_path
     with pytest.raises(checkpoint.CheckpointError, match=r"giant\.npz' is not a readable oneshot checkpoint "
                                                          r"\(params/fc0_w\.npy's header claims a \(1000000000000,\) "
                                                          r"float32 array, which is not the 320 bytes the member "
-                                                         r"holds\); move it aside and re-train it"):
+                                                         r"holds\); move it aside and train it again"):
         checkpoint.load(path)
 
 
@@ -235,8 +235,8 @@ def test_arrays_are_checked_against_the_stored_configs(tmp_path, edit, message):
     with pytest.raises(checkpoint.CheckpointError) as e:
         checkpoint.load(path)
     assert str(path) in str(e.value) and message in str(e.value)
-    assert str(e.value).endswith("; move it aside and re-train it (a sweep's run: run the sweep again), or use "
-                                 "another checkpoint")
+    assert str(e.value).endswith("; move it aside and train it again (with the train or fig2 command that made "
+                                 "it), or use another checkpoint")
 
 
 def test_changed_arrays_fail_the_checksum(tmp_path):

@@ -570,7 +570,7 @@ def test_evaluate_names_a_damaged_file(capsys, tmp_path, trained, tiny_datasets,
     broken.write_bytes(bytes(raw))
     argv = [str(broken), "--validation", tiny_datasets[1]] if damaged == "checkpoint" else [trained, "--validation", str(broken)]
     line, out = refused(capsys, evaluate.main, argv + ["--train", ""])
-    assert repr(str(broken)) in line and ("re-train it" in line or "re-create it" in line) and out == ""
+    assert repr(str(broken)) in line and ("train it again" in line or "re-create it" in line) and out == ""
 
 
 def test_evaluate_says_a_diverged_policy_diverged(capsys, tmp_path, trained, tiny_datasets):

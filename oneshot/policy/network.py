@@ -108,10 +108,10 @@ def activation_floats(config):
     """Numbers one frame's forward pass makes, about: the image, each convolution's im2col matrix and
     output, and the dense layers' outputs (what a gradient keeps for its backward pass). For the default
     network on 32x32 images: 3,072 + (6,912 + 10,240) + (23,040 + 2,560) + (5,760 + 640) + 402 = 52,626."""
-    floats, c_in, size = config.image_size ** 2 * config.image_channels, config.image_channels, config.image_size
+    floats, c_in = config.image_size ** 2 * config.image_channels, config.image_channels
     for c_out, side in zip(config.channels, feature_sizes(config)):
-        floats += side * side * (config.kernel ** 2 * c_in + c_out)
-        c_in, size = c_out, side
+        floats += side * side * (config.kernel ** 2 * c_in + c_out)         # im2col, then the output
+        c_in = c_out
     return floats + sum(config.hidden) + config.action_dim
 
 

@@ -11,7 +11,7 @@ from oneshot.tools.files import loads_json
 from oneshot.world.palette import saved_config
 
 FORMAT_VERSION = 1
-FIX = "move it aside and re-train it (a sweep's run: run the sweep again), or use another checkpoint"
+FIX = "move it aside and train it again (with the train or fig2 command that made it), or use another checkpoint"
 
 # Config fields added after the first checkpoints were written: older files lack them, and their
 # defaults are what those runs used. Every other field must be recorded. (A field added to TrainConfig
