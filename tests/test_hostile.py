@@ -152,6 +152,14 @@ def test_train_counts_the_activations_of_a_meta_batch_not_only_its_images(capsys
     nothing_written(tmp_path)
 
 
+@pytest.mark.parametrize("extra", [[], ["--breakdown"]])
+def test_the_benchmark_counts_the_activations_of_a_meta_batch_before_timing(capsys, monkeypatch, extra):
+    monkeypatch.setattr(cli, "available_memory_bytes", lambda: 8 * 10 ** 9)
+    line, _ = refused(capsys, benchmark.main, ["maml", "--profile", "smoke", "--meta-batch", "1000", *extra])
+    assert "a meta-batch of 1000 tasks (3 inner steps: their images and the activations" in line
+    assert "8.0 GB is available; use a smaller --meta-batch or fewer --inner-steps" in line
+
+
 @pytest.mark.parametrize("argv, says", [
     (["--hidden", "100000000,100000000"], "the mil policy's 10,000,065,000,030,002 parameters"),
     (["--bias-transform", "100000000"], "the mil policy's"),
