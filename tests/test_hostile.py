@@ -152,6 +152,14 @@ def test_train_counts_the_activations_of_a_meta_batch_not_only_its_images(capsys
     nothing_written(tmp_path)
 
 
+def test_train_names_the_flag_of_a_bad_inner_loop_value(capsys, tmp_path):
+    """It said "loss_scale must be finite and > 0", the field's name, not the flag a person typed."""
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"),
+                                           "--inner-loss-scale", "0"])
+    assert "loss_scale must be finite and > 0" in line and "--inner-loss-scale > 0" in line
+    nothing_written(tmp_path)
+
+
 @pytest.mark.parametrize("extra", [[], ["--breakdown"]])
 def test_the_benchmark_counts_the_activations_of_a_meta_batch_before_timing(capsys, monkeypatch, extra):
     monkeypatch.setattr(cli, "available_memory_bytes", lambda: 8 * 10 ** 9)
