@@ -67,7 +67,8 @@ def main(argv=None):
         cli.writable_folder(run)
     except argparse.ArgumentTypeError as e:
         p.error(f"argument --run: {e}")
-    saved = checkpoint.load(os.path.join(run, "checkpoint.npz")) if args.resume else None
+    ckpt_path = os.path.join(run, "checkpoint.npz")
+    saved = checkpoint.load(ckpt_path) if args.resume else None
     stored, start = (saved["config"], saved["iteration"]) if saved else (None, 0)
     if args.resume and args.profile is None:   # the run's own config; flags may change only RESUMABLE fields
         cfg = dataclasses.replace(stored, **overrides)
@@ -134,10 +135,9 @@ def main(argv=None):
                 f"got {cfg.shards}")
     if start < cfg.iterations or not method.learns:     # (else train() says there is nothing to train)
         work = (f"fitting the {cfg.method} policy" if not method.learns else
-                f"training {cfg.iterations - start} meta-iteration{'s' * (cfg.iterations - start != 1)}"
-                + (f" (from {start})" if start else ""))
+                f"training {_iterations(cfg.iterations - start)}" + (f" (from {start})" if start else ""))
         settings = "the run's own settings" if args.resume and args.profile is None else f"profile {profile}"
-        print(f"{work}: {settings}, seed {cfg.seed}, into {os.path.join(run, 'checkpoint.npz')}"
+        print(f"{work}: {settings}, seed {cfg.seed}, into {ckpt_path}"
               + (" (Ctrl-C saves it; --resume continues)" if method.learns else ""))
     if method.describe():
         print(method.describe())
@@ -154,9 +154,13 @@ def main(argv=None):
     finally:
         signal.signal(signal.SIGTERM, previous)
     done = (f"fitted the {cfg.method} policy" if not method.learns else
-            f"trained {cfg.iterations - start} meta-iteration{'s' * (cfg.iterations - start != 1)}"
-            + (f" (from {start} to {cfg.iterations})" if start else ""))
-    print(f"{done} in {time.perf_counter() - t0:.0f} s; checkpoint: {os.path.join(run, 'checkpoint.npz')}")
+            f"trained {_iterations(cfg.iterations - start)}" + (f" (from {start} to {cfg.iterations})" if start else ""))
+    print(f"{done} in {time.perf_counter() - t0:.0f} s; checkpoint: {ckpt_path}")
+
+
+def _iterations(n):
+    """"1 meta-iteration", "20 meta-iterations"."""
+    return f"{n} meta-iteration{'s' * (n != 1)}"
 
 
 def _prefixes(text):
