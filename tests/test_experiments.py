@@ -677,6 +677,34 @@ def test_an_interrupted_sweep_counts_the_runs_it_has_finished(tmp_path, monkeypa
                 f"from their checkpoints" in capsys.readouterr().err)
 
 
+def test_a_work_folder_resumed_with_other_data_is_refused_once_before_collecting(tmp_path, monkeypatch, capsys):
+    """A sweep's work folder with a checkpoint trained on --data d, resumed with --data e: one line, exit
+    2, before collecting e's datasets (its runs would each fail to resume). With --data d, or a damaged
+    checkpoint (left to its run), or once the run's row is done, it goes on."""
+    monkeypatch.chdir(tmp_path)
+    assert command.main(["fig2", "--profile", "tiny", "--data-only", "--data", "d", "--no-progress"]) == 0
+    spec = next(r for r in plan(TINY) if r.method == "mil-conv0" and r.seed == 0)
+    sweeping.execute(fig2.run_one, spec, os.path.abspath(os.path.join("w", spec.run_id)), run_context(TINY, "d"))
+    argv = ["fig2", "--profile", "tiny", "--work", "w", "--out", "o", "--no-progress", "--data-only"]
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as e:
+        command.main([*argv, "--data", "e"])
+    err = capsys.readouterr().err
+    ckpt = os.path.join("w", spec.run_id, "checkpoint.npz")
+    assert e.value.code == 2 and err.count("\n") == 1, err                   # one line
+    assert (f"argument --data: {ckpt} was trained on {os.path.abspath('d')}{os.sep}grid_train_c3_d4_s0.npz, not on "
+            f"{os.path.abspath('e')}'s: pass --data {os.path.abspath('d')}, as its sweep did, or another --work" in err), err
+    assert not os.path.exists("e")
+    assert command.main([*argv, "--data", "d"]) == 0
+    row = json.loads(open(os.path.join("w", spec.run_id, sweep_rows.ROW_FILE)).read())
+    sweep_rows.write_rows([row], os.path.join("o", "runs.csv"))            # the run is done: not checked
+    assert command.main([*argv, "--data", "e"]) == 0 and os.path.isdir("e")
+    os.remove(os.path.join("o", "runs.csv"))
+    with open(ckpt, "wb") as f:
+        f.write(b"not a checkpoint")
+    assert command.main([*argv, "--data", "e"]) == 0
+
+
 def test_a_finished_run_ships_as_a_policy_that_scores_what_its_row_says(tmp_path, monkeypatch, capsys):
     """`ship`: the run's checkpoint, its datasets looked for where `fig2 --data-only` collects them; the
     shipped file, evaluated there, scores its row's numbers. An unfinished run or another line: exit 2."""

@@ -39,7 +39,7 @@ import signal
 import sys
 
 from oneshot.experiments.fig2 import PROFILES, ensure_data, load_results, plan, run_context, run_one
-from oneshot.experiments.folders import check_comparable, check_results_folder
+from oneshot.experiments.folders import check_comparable, check_results_folder, check_work_data
 from oneshot.experiments.lines import LABELS, LINES
 from oneshot.experiments.parts import narrow
 from oneshot import methods
@@ -162,6 +162,11 @@ def main(argv=None):
         f.error(f"argument --out: {out} is in the sweep's work folder {args.work} (its runs' folders); "
                 f"name a results folder outside it")
     runs = plan(cfg)
+    done = done_rows(out, args.work, args.keep_rows)
+    try:                                       # before collecting data that the runs would not use
+        check_work_data(runs, args.work, run_context(cfg, args.data), done)
+    except ValueError as e:
+        f.error(f"argument --data: {e}")
     workers = min(args.workers or 2, os.cpu_count() or 1, len(runs))      # more would only share the cores
     previous = signal.signal(signal.SIGTERM, _interrupt)    # a plain kill stops the sweep as Ctrl-C does
     try:

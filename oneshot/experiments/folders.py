@@ -1,12 +1,14 @@
-"""A results folder of Figure 2's sweeps (`results/fig2_<profile>/`) as a command meets it before any run:
-may this sweep write there (`check_results_folder`: one profile's results to a folder), and may its
-points be compared with the results there (`check_comparable`, `fig2 --compare`)?
+"""The folders of Figure 2's sweeps as a command meets them before any run: may this sweep write to a
+results folder (`results/fig2_<profile>/`; `check_results_folder`: one profile's results to a folder),
+may its points be compared with the results there (`check_comparable`, `fig2 --compare`), and do the
+runs of its work folder continue with these datasets (`check_work_data`)?
 """
 import os
 
-from oneshot.experiments.fig2 import plan
+from oneshot.experiments.fig2 import plan, run_config
 from oneshot.experiments.rows import read_rows, row_id
 from oneshot.tools import files
+from oneshot.training import checkpoint
 
 
 def check_results_folder(cfg, folder):
@@ -41,6 +43,27 @@ def check_comparable(cfg, folder, rows):
     if score is not None and score != cfg.score:
         raise ValueError(f"{folder} was scored on the {score} colours and this sweep scores the {cfg.score} colours: "
                          f"their points do not compare; name results scored on the {cfg.score} colours")
+
+
+def check_work_data(runs, work_dir, context, done=()):
+    """Raise ValueError, before any data is collected or run started, if a run of `runs` (but those in
+    `done`) has a checkpoint in work_dir trained on other datasets than `context`'s: a sweep resumed with
+    another --data, each of whose runs would fail to resume one by one. A damaged checkpoint is left to
+    its run, which names it."""
+    for spec in runs:
+        path = os.path.join(work_dir, spec.run_id, "checkpoint.npz")
+        if spec.run_id in done or not os.path.isfile(path):
+            continue
+        try:
+            stored = checkpoint.load(path)["config"]
+        except checkpoint.CheckpointError:
+            continue
+        expected = run_config(spec, context)
+        for name in ("train_data", "validation_data", "test_data"):
+            was, now = getattr(stored, name), getattr(expected, name)
+            if was != now:
+                raise ValueError(f"{path} was trained on {was}, not on {os.path.dirname(now)}'s: pass "
+                                 f"--data {os.path.dirname(was)}, as its sweep did, or another --work")
 
 
 def _summary_config(path):
