@@ -15,6 +15,7 @@ import autograd.numpy as anp
 import numpy as np
 import pytest
 from autograd import grad
+from autograd.tracer import getval
 
 from helpers import RIGHT_1, RIGHT_9, solution_source, student_copy
 from oneshot.expert import ilqg
@@ -225,6 +226,82 @@ WRONG = [
 ]
 
 
+# Wrong answers that a single case, check or message of a checker is there to catch: each was found by a
+# mutation audit of the checkers (that case dropped, that check loosened, let it pass or lose its words).
+
+def _short_value_x(Vx, Vxx, A, B, lx, lu, lxx, luu, lux, mu):
+    """V_x in its short form Q_x + K^T Q_u (right only when mu = 0), V_xx in the full one."""
+    Qx, Qu = lx + A.T @ Vx, lu + B.T @ Vx
+    Qxx, Quu, Qux = lxx + A.T @ Vxx @ A, luu + B.T @ Vxx @ B, lux + B.T @ Vxx @ A
+    k, K = -np.linalg.solve(Quu + mu * B.T @ B, Qu), -np.linalg.solve(Quu + mu * B.T @ B, Qux + mu * B.T @ A)
+    return k, K, Qx + K.T @ Qu, Qxx + K.T @ Quu @ K + K.T @ Qux + Qux.T @ K
+
+
+def _residual_in_place(params, demo):
+    images, states, actions = demo
+    actions -= forward(params, images, states)            # the residual, written into the demo's actions
+    return anp.sum(actions ** 2)
+
+
+def _inner_by_prefix(first_only=False, stop_gradient=False, with_gradients=False):
+    def inner_update(params, demo, loss_fn, alpha, only=None):
+        g = grad(loss_fn)(params, demo)
+        g = {k: getval(v) for k, v in g.items()} if stop_gradient else g
+        adapt = lambda k: only is None or k.startswith(only[0] if first_only else tuple(only))
+        new = {k: v - alpha * g[k] if adapt(k) else v for k, v in params.items()}
+        return {**new, **{"grad_" + k: v for k, v in g.items()}} if with_gradients else new
+    return inner_update
+
+
+def _meta_residual_reversed(w, alpha, adapt_demo, eval_demo):
+    """The inner step right, the outer gradient written with the residual y - w' x: the opposite sign."""
+    (xa, ya), (xe, ye) = adapt_demo, eval_demo
+    w2 = w - alpha * 2 * np.sum(xa * (w * xa - ya))
+    first = 2 * np.sum(xe * (ye - w2 * xe))
+    return float(first * (1 - 2 * alpha * np.sum(xa ** 2))), float(first)
+
+
+def _wilson_unguarded(successes, trials, z=1.96):
+    p, n = successes / trials, trials
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def _lstm_in_place(w_h, xw, h, c):
+    i, f, g, o = np.split(xw + h @ w_h, 4, axis=-1)
+    c *= sigmoid(f)                                        # the cell state, updated in the caller's array
+    c += sigmoid(i) * np.tanh(g)
+    return sigmoid(o) * np.tanh(c), c
+
+
+WRONG += [
+    (1, lambda e, t, r=0.05: bool(np.linalg.norm(np.asarray(e)[-(len(e) // 5):] - t, axis=-1).min() <= r),
+     ["T // 5 is 0", "on a 3-step episode"]),              # right for T = 1 (e[-0:] is its one step), not T = 3
+    (1, lambda e, t, r=0.05: bool(np.linalg.norm(np.asarray(e)[int(0.8 * len(e)):] - t, axis=-1).min() <= r),
+     ["final fifth is too long", "of 23 steps it is the last T // 5 = 4"]),   # 5 of 23 steps; right for T = 50
+    (2, _kinematics(lambda q: q[0], lambda q: q[0] + q[1]),
+     ["on a batch of 5 poses", "has shape (2, 2); expected (5, 2)"]),
+    (2, _kinematics(lambda q: q[..., 0], lambda q: q[..., 0] + q[..., 1], transpose=True),
+     ["your Jacobian J[x, q2] is", "it is the transpose of the expected value"]),
+    (3, _backward_step(K_sign=+1), ["(on the arm's sizes: n = 4 states, m = 2 controls, mu = 0.0: your K[0, 0] is",
+                                    "it is the expected value with the opposite sign"]),
+    (3, _short_value_x, ["V_x", "mu = 0.5"]),              # Vx the mistake's, Vxx right: named on Vx alone
+    (5, _residual_in_place, ["changed its argument `demo` in place"]),
+    (6, _inner_by_prefix(first_only=True), ["on one step of alpha = 0.3 on the keys starting with 'layer0_w' or "
+                                            "'layer1_b'", "params['layer1_b']"]),
+    (6, _inner_by_prefix(stop_gradient=True), ["first-order one", "MAML's meta-gradient through your update"]),
+    (6, _inner_by_prefix(with_gradients=True), ["keys that were not asked for: ['grad_layer0_w'"]),
+    (7, _meta_residual_reversed, ["(the opposite sign)"]),
+    (8, lambda images, demo_images: np.concatenate([images, np.broadcast_to(demo_images[-1], images.shape)], -1),
+     ["on a batch of 2 tasks", "demo_images[..., -1, :, :, :]"]),
+    (8, _context(axis=-2), ["image's width", "(column: 12 instead of 6; channel: 3 instead of 6)"]),
+    (9, _wilson_unguarded, ["raised ZeroDivisionError", "on 0 trials", "(0.0, 1.0)"]),
+    (10, _lstm_in_place, ["changed its argument `c` in place"]),
+    (10, _lstm(lambda x: sigmoid(np.clip(x, -10, 10))), ["large gate inputs (saturated gates)"]),
+]
+
+
 @pytest.mark.parametrize("number, function, words", WRONG, ids=[f"{n}-{i}" for i, (n, _, _) in enumerate(WRONG)])
 def test_checker_names_the_mistake(number, function, words):
     text = message(number, function)
@@ -282,6 +359,30 @@ def test_a_near_miss_shows_the_digits_that_differ_and_no_relation_that_is_not_th
     symmetric, out = np.array([[2.0, 1.0], [1.0, 3.0]]), Out("array", "your M")
     assert "transpose" not in compare(symmetric + 1e-3, symmetric, out).message
     assert "transpose" in compare(np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([[1.0, 3.0], [2.0, 4.0]]), out).message
+
+
+def _scaled(value, part, factor):
+    """The result with the floats of its part `part` (a tuple index; None: all of it) times `factor`."""
+    if part is not None:
+        return tuple(_scaled(v, None, factor) if i == part else v for i, v in enumerate(value))
+    if isinstance(value, dict):
+        return {k: _scaled(v, None, factor) for k, v in value.items()}
+    if isinstance(value, np.ndarray):
+        return (value * factor).astype(value.dtype) if value.dtype.kind == "f" else value
+    return value * factor
+
+
+@pytest.mark.parametrize("number, part", [(2, 0), (2, 1), (3, 0), (3, 1), (3, 2), (3, 3), (4, None), (5, None),
+                                          (6, None), (7, 0), (7, 1), (8, None), (9, 0), (9, 1), (10, 0), (10, 1)])
+def test_every_part_of_every_result_is_held_to_the_tolerance(number, part):
+    """The right answer with one part 1 + 1e-5 times too large is refused on the first case it shows on
+    (exercise 8's first float case; exercise 5's first loss, not only its gradient), that part and the
+    relative difference named: a tolerance loosened on any one part's Out would let it pass."""
+    right, checker = student_copy(number), CHECKERS[number]
+    text = message(number, lambda *args: _scaled(right(*args), part, 1 + 1e-5))
+    first = next(c for c in checker.cases() if number != 8 or c.args[0].dtype.kind == "f")
+    assert text.startswith(f"on {first.label}, ") and "relative difference of 1.0e-05" in text, text
+    assert part is None or re.search(re.escape(checker.out.parts[part].what) + r"(\[| is)", text), text
 
 
 def test_exercise_8_keeps_a_float_dtype_as_well_as_an_integer_one():
