@@ -281,7 +281,8 @@ WRONG += [
     (1, lambda e, t, r=0.05: bool(np.linalg.norm(np.asarray(e)[int(0.8 * len(e)):] - t, axis=-1).min() <= r),
      ["final fifth is too long", "of 23 steps it is the last T // 5 = 4"]),   # 5 of 23 steps; right for T = 50
     (2, _kinematics(lambda q: q[0], lambda q: q[0] + q[1]),
-     ["on a batch of 5 poses", "has shape (2, 2); expected (5, 2)"]),
+     ["on a batch of 5 poses", "has shape (2, 2); expected (5, 2) (axis 0: 2 instead of 5); q has leading axes: use "
+      "q[..., 0] and q[..., 1]"]),
     (2, _kinematics(lambda q: q[..., 0], lambda q: q[..., 0] + q[..., 1], transpose=True),
      ["your Jacobian J[x, q2] is", "it is the transpose of the expected value"]),
     (3, _backward_step(K_sign=+1), ["(on the arm's sizes: n = 4 states, m = 2 controls, mu = 0.0: your K[0, 0] is",
@@ -359,6 +360,18 @@ def test_a_near_miss_shows_the_digits_that_differ_and_no_relation_that_is_not_th
     symmetric, out = np.array([[2.0, 1.0], [1.0, 3.0]]), Out("array", "your M")
     assert "transpose" not in compare(symmetric + 1e-3, symmetric, out).message
     assert "transpose" in compare(np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([[1.0, 3.0], [2.0, 4.0]]), out).message
+
+
+def test_a_hint_about_raising_is_not_added_to_a_wrong_value():
+    """A case's hint about an error ("autograd cannot differentiate ...") is not given for a wrong
+    value that no mistake explains: here an update right in value whose derivative is 1.5 times too
+    large in its gradient's part (g - getval(g) is 0, its derivative that of g)."""
+    def inner_update(params, demo, loss_fn, alpha, only=None):
+        g = grad(loss_fn)(params, demo)
+        adapt = lambda k: only is None or k.startswith(tuple(only))
+        return {k: v - alpha * (g[k] + 0.5 * (g[k] - getval(g[k]))) if adapt(k) else v for k, v in params.items()}
+    text = message(6, inner_update)
+    assert text.startswith("on MAML's meta-gradient through your update") and "autograd cannot" not in text, text
 
 
 def _scaled(value, part, factor):

@@ -77,13 +77,15 @@ class Case:
     """One input. label: the input in words ("a 5-frame demo"); args: the function's arguments;
     facts: numbers a mistake's words may quote ("{T}"); call(fn, *args): how the checker uses a
     function (default fn(*args), or e.g. its gradient); out: the result's shape if not the checker's;
-    hint: words added when the student's function raises on this case."""
+    hint: words added when the student's function raises on this case, or gets it wrong in a way no
+    known mistake explains (e.g. "q has leading axes: use q[..., 0]"), unless hint_only_on_error."""
     label: str
     args: tuple
     facts: dict = field(default_factory=dict)
     call: Callable = None
     out: Out = None
     hint: str = ""
+    hint_only_on_error: bool = False        # the hint is about raising (e.g. "autograd cannot differentiate")
 
     def run(self, fn, args=None):
         args = self.args if args is None else args
@@ -271,5 +273,6 @@ def judge(exercise, checker, outcome_of, cases, wants=None):
             mistake = _diagnose(checker, cases, index, outcome.value, want, difference, outcome_of)
             if mistake is not None:
                 return verdict(False, f"{_explain(mistake, case)} (on {case.label}: {difference.message})")
-            return verdict(False, f"on {case.label}, {difference.message}")
+            hint = f"; {case.hint}" if case.hint and not case.hint_only_on_error else ""
+            return verdict(False, f"on {case.label}, {difference.message}{hint}")
     return verdict(True, "correct")

@@ -50,7 +50,8 @@ def _inner_cases():
                       (params, demo(), toy_loss, 0.1, ("layer1",)), call=_through(demo()),
                       out=Out("dict", "d L(your theta') / d theta"),
                       hint="autograd cannot differentiate through your update: keep it in autograd's terms "
-                           "(theta - alpha * g, no np.array(...) or float(...) on the values)"))
+                           "(theta - alpha * g, no np.array(...) or float(...) on the values)",
+                      hint_only_on_error=True))
     return cases
 
 

@@ -101,7 +101,8 @@ def _loss_cases():
             Case("autograd's gradient of your loss on a 6-frame demo", (params, _demo(rng, params, 6)), {"T": 6},
                  call=_gradient, out=Out("dict", "grad(your loss)"),
                  hint="autograd cannot differentiate your loss: write it with autograd.numpy "
-                      "(import autograd.numpy as np), without np.array(...) or float(...) on its values")]
+                      "(import autograd.numpy as np), without np.array(...) or float(...) on its values",
+                 hint_only_on_error=True)]
 
 
 def _wrong_loss(combine):
