@@ -289,7 +289,8 @@ WRONG += [
                                     "it is the expected value with the opposite sign"]),
     (3, _short_value_x, ["V_x", "mu = 0.5"]),              # Vx the mistake's, Vxx right: named on Vx alone
     (5, _residual_in_place, ["changed its argument `demo` in place"]),
-    (6, _inner_by_prefix(first_only=True), ["on one step of alpha = 0.3 on the keys starting with 'layer0_w' or "
+    (6, _inner_by_prefix(first_only=True), ["you adapted only the keys starting with the first prefix of `only`",
+                                            "on one step of alpha = 0.3 on the keys starting with 'layer0_w' or "
                                             "'layer1_b'", "params['layer1_b']"]),
     (6, _inner_by_prefix(stop_gradient=True), ["first-order one", "MAML's meta-gradient through your update"]),
     (6, _inner_by_prefix(with_gradients=True), ["keys that were not asked for: ['grad_layer0_w'"]),

@@ -79,6 +79,9 @@ INNER = Checker(
         Mistake("`only` holds key PREFIXES: {only} selects every key that starts with one of them "
                 "(key.startswith(tuple(only))), not only the keys equal to one",
                 _wrong_inner(adapts=lambda key, only: only is None or key in only)),
+        Mistake("you adapted only the keys starting with the first prefix of `only`: {only} selects every key "
+                "that starts with any of them (key.startswith(tuple(only)))",
+                _wrong_inner(adapts=lambda key, only: only is None or key.startswith(only[0]))),
         Mistake("your step is alpha^2 * grad: eq. (1) steps by alpha * grad (alpha = {alpha})",
                 _wrong_inner(step=lambda alpha: alpha ** 2)),
         Mistake("your step lacks alpha: eq. (1) is theta - alpha * grad (alpha = {alpha})",
