@@ -2,6 +2,7 @@
 import dataclasses
 
 import numpy as np
+import pymunk
 import pytest
 
 from oneshot.world import arm
@@ -118,3 +119,51 @@ def test_end_effector_jacobian_matches_finite_differences():
     J_fd = np.stack([(arm.forward_kinematics(q + eps * e, CFG) - arm.forward_kinematics(q - eps * e, CFG))
                      / (2 * eps) for e in np.eye(2)], -1)
     np.testing.assert_allclose(arm.end_effector_jacobian(q, CFG), J_fd, atol=1e-8)
+
+
+def test_mass_matrix_is_the_kinetic_energy_of_the_two_links():
+    """1/2 qd^T M(q) qd equals the links' kinetic energy summed body by body (centre-of-mass velocities
+    from the kinematics, moments from Pymunk's formula for each link's own mass and length), for an arm
+    whose links differ in mass and length, so that a mass or length of one link used for the other shows."""
+    cfg = arm.ArmConfig(m1=2.0, m2=0.5, l1=0.09, l2=0.12)
+    a, d, h = cfg.mass_coefficients
+    i1 = pymunk.moment_for_segment(cfg.m1, (-cfg.l1 / 2, 0), (cfg.l1 / 2, 0), cfg.radius)
+    i2 = pymunk.moment_for_segment(cfg.m2, (-cfg.l2 / 2, 0), (cfg.l2 / 2, 0), cfg.radius)
+    rng = np.random.default_rng(3)
+    for q1, q2, w1, w2 in np.column_stack([rng.uniform(-np.pi, np.pi, (6, 2)), rng.normal(0, 3, (6, 2))]):
+        perp = lambda angle: np.array([-np.sin(angle), np.cos(angle)])        # d/dangle of (cos, sin)
+        v1 = cfg.l1 / 2 * w1 * perp(q1)
+        v2 = cfg.l1 * w1 * perp(q1) + cfg.l2 / 2 * (w1 + w2) * perp(q1 + q2)
+        bodies = 0.5 * (cfg.m1 * v1 @ v1 + i1 * w1 ** 2 + cfg.m2 * v2 @ v2 + i2 * (w1 + w2) ** 2)
+        c = np.cos(q2)
+        M = np.array([[a + 2 * h * c, d + h * c], [d + h * c, d]])
+        assert 0.5 * np.array([w1, w2]) @ M @ np.array([w1, w2]) == pytest.approx(bodies, rel=1e-12)
+
+
+def test_inverse_kinematics_returns_the_solution_nearest_q_near():
+    """Of the two elbow solutions, the one at the pose we started near, with its angles unwrapped to it
+    (q1 up to 3 turns away from [-pi, pi])."""
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        q = np.array([rng.uniform(-6 * np.pi, 6 * np.pi), rng.choice([-1, 1]) * rng.uniform(0.3, 2.8)])
+        g = arm.forward_kinematics(q, CFG)
+        np.testing.assert_allclose(arm.inverse_kinematics(g, q + rng.normal(0, 0.05, 2), CFG), q, atol=1e-9)
+
+
+def test_the_model_and_the_world_both_clip_torques_to_the_bound():
+    """Torques beyond max_torque act as max_torque, in the model's single-state and batched paths and in
+    the Pymunk world, bit for bit."""
+    lim = CFG.max_torque
+    x = np.array([[0.3, 1.0, 0.5, -1.0], [-1.0, 0.4, -2.0, 0.3]])
+    big, bound = np.array([[3.0, -3.0], [-1.5, 0.9]]), np.array([[lim, -lim], [-lim, lim]])
+    assert np.array_equal(arm.step(x, big, CFG), arm.step(x, bound, CFG))
+    assert np.array_equal(arm.step(x[0], big[0], CFG), arm.step(x[0], bound[0], CFG))
+    assert not np.allclose(arm.step(x, 0.9 * bound, CFG), arm.step(x, bound, CFG))   # the bound is not lower
+    states = []
+    for u in (big[0], bound[0]):
+        world = ReachWorld()
+        world.reset(seed=0)
+        for _ in range(3):
+            world.step(u)
+        states.append(world.state)
+    assert np.array_equal(*states)

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from helpers import check_hostile_scenes, one_line_error
-from oneshot.world import palette
-from oneshot.world.render import world_to_pixels
+from oneshot.data.datasets import STATE_LAYOUT
+from oneshot.world import arm, palette
+from oneshot.world.render import render, world_to_pixels
 from oneshot.world.reach import ReachWorld, WorldConfig, closest_object, is_success, observation_state
 from oneshot.world.scene import Scene, sample_scene
 
@@ -258,3 +259,143 @@ def test_success_radius_is_0_05_m_a_point_just_beyond_it_fails():
     within = far.copy()
     within[-1] = [0.1, 0.049]
     assert is_success(within, target)              # and not below 0.05 either
+
+
+# --- added by the mutation audit of oneshot/world (each names the mutants it kills) ----------------------
+
+PIXEL = 0.44 / 32                               # metres per pixel of the default 32x32 image
+
+
+def test_render_puts_a_disc_and_the_arm_on_hand_computed_pixels():
+    """Without world_to_pixels: a red disc centred on pixel (row 8, col 7) is the upper left (world y up),
+    pure red there and black at its mirror image (row 23); antialiased (rim pixels between 0 and 255); of
+    about pi r^2 pixels; both links of the arm drawn (white at each link's midpoint); and a disc drawn over
+    the arm. Kills: y not flipped, radius halved, link 2 not drawn, nearest-neighbour shrinking instead of
+    the box filter, the arm drawn over the discs."""
+    centre = np.array([7.5 * PIXEL - 0.22, 0.22 - 8.5 * PIXEL])
+    joints = np.array([[0.0, 0.0], [0.1, 0.0], [0.1, 0.11]])      # in the right half, far from the disc
+    image = render(joints, centre[None], np.array([[255, 0, 0]], np.uint8), arena_half_width=0.22).astype(int)
+    assert image[8, 7].tolist() == [255, 0, 0] and image[23, 7].tolist() == [0, 0, 0]
+    disc = image[3:14, 2:13, 0]                                    # +-5 pixels around it
+    assert image[3:14, 2:13, 1:].max() == 0 and np.any((disc > 0) & (disc < 255))
+    area = disc.sum() / 255
+    assert 1.0 < area / (np.pi * (0.025 / PIXEL) ** 2) < 1.25     # Pillow's ellipse: +20% at this size
+    assert image[12, 23].min() > 100 and len(set(image[12, 23])) == 1          # link 2's midpoint (0.1, 0.055)
+    assert image[15:17, 19].min(axis=1).max() > 100                            # link 1's midpoint (0.05, 0)
+    on_arm = np.array([23.5 * PIXEL - 0.22, 0.22 - 12.5 * PIXEL])             # a disc over link 2 hides it
+    image = render(joints, on_arm[None], np.array([[255, 0, 0]], np.uint8), arena_half_width=0.22)
+    assert image[12, 23].tolist() == [255, 0, 0]
+
+
+def test_the_world_draws_discs_at_its_configured_radius():
+    """object_radius=0.035 gives a disc of about pi (0.035 m)^2, not the renderer's default 0.025 m. Kills:
+    ReachWorld.render not passing cfg.object_radius."""
+    world = ReachWorld(WorldConfig(object_radius=0.035, max_object_radius=0.18))
+    centre = np.array([7.5 * PIXEL - 0.22, 0.22 - 23.5 * PIXEL])                # lower left, far from the arm
+    obs, _ = world.reset(options={"scene": Scene(np.array([0]), centre[None], 0)})   # colour 0: (255, 0, 0)
+    area = obs["image"][16:32, 0:16, 0].astype(int).sum() / 255
+    assert 1.0 < area / (np.pi * (0.035 / PIXEL) ** 2) < 1.25, area
+
+
+def test_success_and_closest_object_use_exactly_the_final_fifth():
+    """A single near step at the first step of the final fifth counts (the 16th of 20, the 40th of 50), one
+    step earlier does not; closest_object takes each object's minimum over that window, not its last or
+    largest distance. Kills: a window of the last 3 (horizon // 5 - 1), max over the window."""
+    target = np.array([0.1, 0.0])
+    for T, window in ((20, 4), (50, 10)):
+        path = np.tile([0.0, 0.15], (T, 1))
+        path[-window] = target
+        assert is_success(path, target)
+        path = np.tile([0.0, 0.15], (T, 1))
+        path[-window - 1] = target
+        assert not is_success(path, target)
+    positions = np.array([[0.1, 0.0], [0.0, 0.15], [-0.1, 0.0]])
+    path = np.tile([-0.1, 0.1], (20, 1))                 # 0.1 m from objects 1 and 2 throughout
+    path[-3] = [0.0, 0.16]                               # one step of the window 0.01 m from object 1
+    index, distance = closest_object(path, positions)
+    assert index == 1 and distance == pytest.approx(0.01)
+
+
+def test_the_worlds_success_flag_is_raised_at_the_end_for_the_target_only():
+    """The arm at rest stays at its start pose q0 = (0, pi/2): end effector (l1, l2) = (0.1, 0.11) (no gravity,
+    no torque). With the target there (object 1, not object 0) success is False until step T and True at
+    T; with a distractor there, False. Kills: success judged before the episode ends; success judged
+    against object 0 instead of the target."""
+    world = ReachWorld()
+    start = np.array([0.1, 0.11])
+    for target, expected in ((1, True), (0, False)):
+        scene = Scene(np.array([8, 24, 40]), np.array([[-0.1, -0.1], start, [0.1, -0.15]]), target)
+        world.reset(options={"scene": scene})
+        flags = [world.step(np.zeros(2))[4]["success"] for _ in range(world.config.horizon)]
+        assert flags == [False] * (world.config.horizon - 1) + [expected], target
+
+
+def test_start_noise_moves_the_start_pose_and_pymunk_builds_the_arm_there():
+    """With start_noise the start angles differ from q0 and from seed to seed, and the Pymunk links are
+    built at them: the end effector is the forward kinematics of the joint angles and link 2 starts at link
+    1's elbow. Kills: start_noise ignored; link 2 built at angle q2 instead of q1 + q2 (the same at q1 = 0)."""
+    world = ReachWorld(WorldConfig(start_noise=0.3))
+    cfg = world.config.arm
+    starts = []
+    for seed in range(3):
+        obs, _ = world.reset(seed=seed)
+        q = obs["joint_angles"]
+        starts.append(q)
+        assert np.abs(q - np.array(cfg.q0)).max() > 1e-3
+        np.testing.assert_allclose(arm.forward_kinematics(q, cfg), obs["end_effector"], atol=1e-12)
+        elbow = world._link2.local_to_world((-cfg.l2 / 2, 0))
+        np.testing.assert_allclose([elbow.x, elbow.y], world.joints()[1], atol=1e-12)
+    assert len({tuple(q) for q in starts}) == 3
+
+
+def test_observation_state_is_angles_velocities_end_effector():
+    """datasets.STATE_LAYOUT's order: the last two numbers are the forward kinematics of the first two.
+    Kills: the end effector and velocities swapped."""
+    world = ReachWorld()
+    world.reset(seed=0)
+    obs = world.step(np.array([0.4, -0.3]))[0]
+    state = observation_state(obs)
+    assert state.shape == (6,) and state.dtype == np.float32 and STATE_LAYOUT[4:] == ("end effector x", "end effector y")
+    np.testing.assert_allclose(state[4:], arm.forward_kinematics(state[:2].astype(float), world.config.arm), atol=2e-3)
+    np.testing.assert_allclose(state, np.concatenate([obs["joint_angles"], obs["joint_velocities"],
+                                                      obs["end_effector"]]), rtol=1e-6)
+
+
+def test_every_seed_gives_its_own_scene():
+    """Twelve seeds, twelve scenes (not one per seed's parity). Kills: a seed partly ignored."""
+    world = ReachWorld()
+    scenes = {world.reset(seed=seed)[1]["scene"].positions.tobytes() for seed in range(12)}
+    assert len(scenes) == 12
+
+
+def test_sampled_discs_are_min_separation_apart_not_just_two_success_radii():
+    """Pairwise > min_separation (0.12 m), which is what sample_positions promises. Kills: 2 * success_radius
+    (0.10 m) used instead."""
+    cfg = WorldConfig()
+    rng = np.random.default_rng(1)
+    for _ in range(100):
+        p = sample_scene(5, rng, cfg).positions
+        d = np.linalg.norm(p[:, None] - p[None], axis=-1)
+        assert d[np.triu_indices(3, 1)].min() > cfg.min_separation
+
+
+def test_a_given_scene_is_refused_outside_the_arena_or_the_palette_and_its_colours_copied():
+    """A centre 0.23 m out (outside the arena, though within a disc radius of it) is refused, 0.22 m taken;
+    colours 72 and -1 (not palette indices; -1 would draw the last colour) refused, 71 taken. Writing into
+    the caller's colours afterwards changes nothing. Kills: the arena check loosened by the disc radius,
+    colour n accepted, negative colours accepted, colours not copied."""
+    world = ReachWorld()
+    colours, positions = np.array([0, 16, 32]), np.array([[0.1, 0.0], [-0.1, 0.0], [0.0, 0.15]])
+    edge = positions.copy()
+    edge[2] = [0.0, 0.22]
+    world.reset(options={"scene": Scene(colours, edge, 0)})
+    edge[2] = [0.0, 0.23]
+    one_line_error(lambda: world.reset(options={"scene": Scene(colours, edge, 0)}), "inside the arena")
+    for bad in (72, -1):
+        one_line_error(lambda: world.reset(options={"scene": Scene(np.array([0, 16, bad]), positions, 0)}),
+                       r"palette indices in \[0, 72\)")
+    mine = np.array([0, 16, 71])
+    obs, _ = world.reset(options={"scene": Scene(mine, positions, 0)})
+    mine[:] = 40
+    assert world.scene.colours.tolist() == [0, 16, 71]
+    assert np.array_equal(world.render(), obs["image"])
