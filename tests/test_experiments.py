@@ -74,8 +74,10 @@ def test_plan_is_every_method_size_and_seed_smallest_first():
             assert [r.method for r in first if (r.colours, r.demos) == size] == list(cfg.methods)
     assert plan(PROFILES["quick"])[0].method == PROFILES["quick"].methods[0]
     assert len(plan(PROFILES["paper"])) == 5 * 5 * 3
-    longer = [r for r in plan(PROFILES["ablation"]) if r.method == "mil-released+widths+30k"]
-    assert [(r.seed, r.iterations) for r in longer] == [(0, 30000), (1, 30000)]
+    for line in ("mil-released+widths+30k", "mil-released+widths+3steps+30k"):
+        longer = [r for r in plan(PROFILES["ablation"]) if r.method == line]
+        assert [(r.seed, r.iterations) for r in longer] == [(0, 30000), (1, 30000)]
+    assert lines.LINES["mil-released+widths+3steps+30k"].inner_steps == 3
     with pytest.raises(ValueError, match=r"mil-released\+widths\+30k continues mil-released\+widths to 30000 iterations"):
         dataclasses.replace(PROFILES["ablation"], iterations=30000)
 
