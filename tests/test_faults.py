@@ -15,6 +15,8 @@ from oneshot import train
 from oneshot.training import checkpoint, config, run_folder
 from test_hostile import refused
 
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
 
 @pytest.fixture
 def smoke(tiny_split_datasets):
@@ -26,7 +28,8 @@ def smoke(tiny_split_datasets):
 def test_a_plain_kill_of_collect_is_one_line_and_ends_its_workers(tmp_path):
     command = [sys.executable, "-m", "oneshot.collect", "--out", str(tmp_path / "d.npz"), "--tasks", "36",
                "--demos", "24", "--workers", "2"]
-    parent = subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=tmp_path)
+    parent = subprocess.Popen(command, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=tmp_path,
+                              env=dict(os.environ, PYTHONPATH=ROOT))      # this checkout, not the installed oneshot
     try:
         time.sleep(2.5)
         children = subprocess.run(["pgrep", "-P", str(parent.pid)], capture_output=True, text=True).stdout.split()

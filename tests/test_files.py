@@ -8,6 +8,7 @@ folder is made immutable with chattr +i as root (root ignores file modes), else 
 that could block is guarded by an alarm, and /dev/zero is only read by a child process under a
 memory limit."""
 import contextlib
+import errno
 import os
 import pathlib
 import re
@@ -25,7 +26,7 @@ from PIL import Image
 from oneshot import collect, evaluate
 from oneshot.data import datasets, npz
 from oneshot.experiments import fig2, rows as sweep, summary
-from oneshot.tools import viz
+from oneshot.tools import files, viz
 from oneshot.training import checkpoint, run_folder
 from test_checkpoint import save_tiny
 from test_hostile import refused
@@ -219,6 +220,62 @@ def test_collect_writes_through_a_link_and_refuses_one_into_a_read_only_folder(c
     assert f"no new files can be made in '{there}'" in line and printed == ""
 
 
+# How atomic_write writes: never half a file at the path, whatever happens on the way.
+
+def test_atomic_write_syncs_the_whole_new_file_before_it_takes_the_files_place(tmp_path, monkeypatch):
+    """A power cut just after the rename must find the new bytes, not an empty file: the temporary file is
+    flushed and fsynced while the old file is still in place."""
+    path = tmp_path / "d.npz"
+    path.write_bytes(b"old")
+    synced, fsync = [], os.fsync
+
+    def watched(fd):
+        synced.append((os.fstat(fd).st_size, path.read_bytes()))
+        fsync(fd)
+    monkeypatch.setattr(os, "fsync", watched)
+    with files.atomic_write(path) as f:
+        f.write(b"new bytes")
+    assert synced == [(9, b"old")] and path.read_bytes() == b"new bytes"
+
+
+def test_a_fifo_put_in_the_files_place_while_it_is_written_is_refused_and_left(tmp_path):
+    path = tmp_path / "d.npz"
+    with pytest.raises(files.RefusedPath, match=refusal("write", path, r"is a FIFO \(named pipe\)")):
+        with files.atomic_write(path) as f:
+            f.write(b"new")
+            os.mkfifo(path)                                    # after the first look, before the rename
+    assert stat.S_ISFIFO(os.lstat(path).st_mode)
+    no_debris(tmp_path)
+
+
+def test_a_file_in_the_way_of_a_folder_to_make_is_refused_naming_it(tmp_path):
+    (tmp_path / "file").write_text("mine")
+    path, folder = tmp_path / "file" / "sub" / "d.npz", tmp_path / "file" / "sub"
+    says = f"cannot write '{path}': '{folder}' cannot be a folder (a file is in the way under '{tmp_path}'); choose"
+    with pytest.raises(files.RefusedPath, match=re.escape(says)):
+        with files.atomic_write(path) as f:
+            f.write(b"new")
+    assert os.listdir(tmp_path) == ["file"] and (tmp_path / "file").read_text() == "mine"
+
+
+@pytest.mark.parametrize("code", ["EACCES", "EPERM", "EROFS"])
+def test_a_folder_that_takes_no_new_files_is_refused_whichever_error_says_so(tmp_path, monkeypatch, code):
+    """chmod 555 says EACCES, chattr +i (as root) EPERM, a read-only mount EROFS: `read_only` can make one
+    of the first two here, so the temporary file's creation is refused with each."""
+    opened = os.open
+
+    def refusing(name, flags, *args, **kwargs):
+        if os.path.basename(name).startswith(".tmp-"):
+            raise OSError(getattr(errno, code), os.strerror(getattr(errno, code)), name)
+        return opened(name, flags, *args, **kwargs)
+    monkeypatch.setattr(os, "open", refusing)
+    with pytest.raises(files.RefusedPath, match=f"^cannot write '{tmp_path / 'd.npz'}': no new files can be made in "
+                                                f"'{tmp_path}' .*; choose another path$"):
+        with files.atomic_write(tmp_path / "d.npz") as f:
+            f.write(b"new")
+    assert os.listdir(tmp_path) == []
+
+
 # --- 2. input paths ---------------------------------------------------------------------------------------
 
 READERS = {
@@ -241,6 +298,28 @@ def test_readers_refuse_what_is_not_a_regular_file_without_reading_it(tmp_path, 
     with pytest.raises(ValueError, match=refusal("read", path, what)):
         READERS[reader](path)
     assert mode_of(path) == before
+
+
+@pytest.mark.parametrize("action, mode", [("read", "rb"), ("write", "a"), ("write", "w"), ("write", "a+")])
+def test_a_fifo_put_in_a_files_place_after_the_first_look_is_refused_once_open(tmp_path, monkeypatch, action, mode):
+    """The look before opening passed (a regular file), then a FIFO took the file's place: opened without
+    blocking and refused, not waited on: on fstat, or ("a" and "w", which meet no reader there) on
+    os.open's ENXIO, which was an OSError (exit 1) saying "No such device or address". A pathlib.Path is
+    named as written, not PosixPath('...')."""
+    path = tmp_path / "log.jsonl"
+    path.write_text("")
+    look = files.target
+
+    def then_a_fifo(*args):
+        real = look(*args)
+        os.remove(path)
+        os.mkfifo(path)
+        return real
+    monkeypatch.setattr(files, "target", then_a_fifo)
+    signal.setitimer(signal.ITIMER_REAL, 2)                    # no_hang's alarm, sooner
+    with pytest.raises(files.RefusedPath, match=refusal(action, path, r"is a FIFO \(named pipe\)")):
+        files.open_read(path, mode) if action == "read" else files.open_write(path, mode)
+    assert stat.S_ISFIFO(os.lstat(path).st_mode)
 
 
 def test_reading_through_a_link_to_a_regular_file_still_works(tmp_path, tiny_datasets):

@@ -127,6 +127,22 @@ def test_widths_are_comma_separated_whole_numbers():
     assert cli.positive_ints("200,200") == (200, 200) and cli.positive_ints("30") == (30,)
 
 
+def test_number_types_take_their_bounds_and_refuse_fractions():
+    """0 is a seed, a --noise and an --eval-every; 2.5 or 1e3 workers is a mistake to name, not 2 or 1000."""
+    assert cli.non_negative_int("0") == 0 and cli.positive_int("1") == 1 and cli.finite_non_negative_float("0") == 0.0
+    for text in ("2.5", "1e3", "2.0"):
+        with pytest.raises(argparse.ArgumentTypeError, match=f"^expected a whole number >= 1; got '{text}'$"):
+            cli.positive_int(text)
+
+
+def test_the_memory_check_of_a_dataset_counts_what_the_dataset_holds(tiny_datasets):
+    """`collect` refuses a dataset larger than memory by this count: it is every array's bytes, exactly."""
+    data = datasets.load(tiny_datasets[1])
+    tasks, demos, horizon, size = data["images"].shape[:4]
+    held = sum(v.nbytes for v in data.values() if isinstance(v, np.ndarray))
+    assert cli.dataset_bytes(tasks, demos, horizon, size, data["colours"].shape[2]) == held
+
+
 def test_train_refuses_a_meta_batch_larger_than_memory(capsys, tmp_path):
     line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), "--meta-batch", HUGE,
                                            "--train-data", str(tmp_path / "train.npz"),
@@ -292,6 +308,13 @@ def test_evaluate_refuses_a_json_path_that_is_one_of_its_inputs(capsys, tmp_path
     cli.not_an_input(str(tmp_path / "r.json"), [str(ckpt), None, ""], "--json")          # another file: fine
     with pytest.raises(ValueError, match="would write into"):                             # inside an input folder
         cli.not_an_input(str(tmp_path / "run" / "r.json"), [str(tmp_path / "run")], "--out")
+
+
+def test_an_output_beside_an_input_folder_is_not_inside_it(tmp_path):
+    """runs/fig2b is not inside runs/fig2 (a name that only starts with the folder's is another folder)."""
+    cli.not_an_input(str(tmp_path / "fig2b" / "policy.npz"), [str(tmp_path / "fig2")], "--out")
+    with pytest.raises(ValueError, match="would write into"):
+        cli.not_an_input(str(tmp_path / "fig2" / "policy.npz"), [str(tmp_path / "fig2")], "--out")
 
 
 # --- 8. and 9. train's other arguments -------------------------------------------------------------------
@@ -738,6 +761,7 @@ def test_a_full_disk_is_named_with_what_to_do(capsys, filename):
         raise OSError(28, "No space left on device", filename)
     line, _ = refused(capsys, main, [], 1)
     assert line.startswith("error: the disk is full (no space left on device") and "free some space" in line
+    assert line.endswith("free some space, or write to another disk")
     assert (f"for {filename!r}" in line) == (filename is not None)
 
 
@@ -754,10 +778,33 @@ def test_a_reader_that_goes_away_ends_the_command_quietly(tmp_path):
     script = ("import sys\nfrom oneshot.tools import cli\n"
               "def main(argv):\n    for _ in range(100000):\n        print('line of output ' * 4)\n"
               "sys.exit(cli.run(main))\n")
-    done = subprocess.run(f"{shlex.quote(sys.executable)} -c {shlex.quote(script)} | head -1", shell=True,
+    command = f"{shlex.quote(sys.executable)} -c {shlex.quote(script)} | head -1; exit ${{PIPESTATUS[0]}}"
+    done = subprocess.run(command, shell=True,
                           capture_output=True, text=True, cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT)),
                           timeout=60, executable="/bin/bash")
     assert done.stdout.startswith("line of output") and done.stderr == "", done.stderr
+    assert done.returncode == 141                                   # the command's own status, not head's
+
+
+def test_a_plain_kill_ends_a_command_as_ctrl_c_does_and_run_gives_the_signal_back(capsys):
+    """SIGTERM (`kill`, a scheduler's stop) while the command works: `error: interrupted`, status 130; after
+    `run`, the caller's own handler is back (a notebook or a test calling `run` is not left with run's)."""
+    caught = []
+
+    def callers_own(signum, frame):
+        caught.append(signum)
+
+    def main(argv):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(1)                                # the handler runs before this line ends
+
+    previous = signal.signal(signal.SIGTERM, callers_own)
+    try:
+        line, _ = refused(capsys, main, [], 130)
+        assert line == "error: interrupted" and caught == []
+        assert signal.getsignal(signal.SIGTERM) is callers_own
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def test_run_keeps_the_traceback_of_a_bug():

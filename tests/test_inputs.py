@@ -227,3 +227,10 @@ def test_the_depth_limit_counts_brackets_outside_strings_only():
     with pytest.raises(JSONTooDeep, match=r"nested deeper than 32: line 1 column 33 \(char 32\)") as e:
         loads_json("[" + deepest + "]")
     assert isinstance(e.value, json.JSONDecodeError) and isinstance(e.value, ValueError)
+
+
+def test_the_depth_limit_counts_nesting_not_brackets():
+    """A hundred arrays side by side are one level deep, not a hundred."""
+    from oneshot.tools.files import loads_json
+    wide = json.dumps({"runs": [[1, 2]] * 100, "deep": [[[]]]})
+    assert loads_json(wide) == json.loads(wide)

@@ -157,6 +157,7 @@ def open_read(path, mode="rb", **kwargs):
     anything else, looking before opening and again once open (never waiting on a FIFO)."""
     if mode not in ("r", "rb"):
         raise ValueError(f"open_read reads: mode 'r' or 'rb'; got {mode!r}")
+    path = os.fspath(path)                     # a refusal names it as written, not PosixPath('...')
     target(path, "read")
     return open(path, mode, opener=_checked("read", path), **kwargs)
 
@@ -167,15 +168,22 @@ def open_write(path, mode="a", **kwargs):
     a link is written through; anything but a regular file is RefusedPath, before it is opened."""
     if mode not in ("a", "a+", "w"):
         raise ValueError(f"open_write writes text in place: mode 'a', 'a+' or 'w'; got {mode!r}")
+    path = os.fspath(path)
     target(path)
     return open(path, mode, opener=_checked("write", path), **kwargs)
 
 
 def _checked(action, path):
     """An `opener` for open(): os.open without blocking (a FIFO would block it), then fstat: anything
-    but a regular file is closed again and RefusedPath."""
+    but a regular file is closed again and RefusedPath (as is a FIFO put in its place since `target`
+    looked, which os.open refuses to write without a reader: ENXIO)."""
     def opener(name, flags):
-        fd = os.open(name, flags | os.O_NONBLOCK | os.O_CLOEXEC, 0o666)
+        try:
+            fd = os.open(name, flags | os.O_NONBLOCK | os.O_CLOEXEC, 0o666)
+        except OSError as e:
+            if e.errno != errno.ENXIO:
+                raise
+            raise _refusal(action, path, os.path.realpath(path), stat.S_IFIFO) from None
         try:
             mode = os.fstat(fd).st_mode
             if not stat.S_ISREG(mode):
