@@ -82,7 +82,7 @@ class SweepConfig:
             raise ValueError(f"trials (per scored colour) must be >= 1; got {self.trials}")
         if self.score not in ("validation", "test"):
             raise ValueError(f"score must be 'validation' or 'test'; got {self.score!r}")
-        for line in set(self.methods) & set(LONGER):
+        for line in (m for m in self.methods if m in LONGER):     # in the profile's order: one message
             shorter, iterations = LONGER[line]
             if LINES[line] != LINES[shorter] or LINES[line].lr_schedule != "constant" or iterations <= self.iterations:
                 raise ValueError(f"{line} continues {shorter} to {iterations} iterations: it needs {shorter}'s "
