@@ -1,11 +1,24 @@
 """oneshot: one-shot visual imitation learning via meta-learning (Finn et al., 2017), in NumPy."""
 import importlib.abc
 import importlib.util
+import signal
 import sys
 
 __version__ = "0.1.0"
 
 GYM_ENV_ID = "oneshot/Reach-v0"       # the world of paper Section IV as a Gymnasium environment
+
+
+def interrupted_while_importing(signum, frame):
+    """Ctrl-C while `python -m oneshot.<command>` imports, before `oneshot.tools.cli.run` takes over (which
+    puts Python's own handler back): the same one line and exit status 130 as cli.run's, not a
+    traceback through NumPy's imports."""
+    sys.stderr.write("error: interrupted\n")
+    raise SystemExit(130)
+
+
+if sys.argv[:1] == ["-m"] and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+    signal.signal(signal.SIGINT, interrupted_while_importing)   # (argv[0] is "-m" while -m locates the module)
 
 
 def _register(gymnasium):

@@ -807,6 +807,36 @@ def test_a_plain_kill_ends_a_command_as_ctrl_c_does_and_run_gives_the_signal_bac
         signal.signal(signal.SIGTERM, previous)
 
 
+CTRL_C_AT_NUMPY = """
+import importlib.abc, os, signal, sys
+class CtrlCAtNumpy(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name == "numpy":
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), signal.SIGINT)       # Ctrl-C as the command starts importing NumPy
+        return None
+sys.meta_path.insert(0, CtrlCAtNumpy())
+"""
+
+
+@pytest.mark.parametrize("module, argv", [("train", ["--help"]), ("experiments", ["fig2", "--help"])])
+def test_ctrl_c_while_a_command_imports_is_one_line_and_130(tmp_path, module, argv):
+    """`python -m oneshot.train`, Ctrl-C in the first half second, while it imports NumPy: `error:
+    interrupted`, status 130, as later (it was a traceback through the imports, status 1). And cli.run
+    puts Python's own handler back, so that a Ctrl-C during the command is a KeyboardInterrupt again
+    (training saves its checkpoint on it)."""
+    (tmp_path / "sitecustomize.py").write_text(CTRL_C_AT_NUMPY)      # run by Python at start-up
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT)]))
+    done = subprocess.run([sys.executable, "-m", f"oneshot.{module}", *argv], capture_output=True, text=True,
+                          cwd=tmp_path, env=env, timeout=60)
+    assert (done.returncode, done.stderr, done.stdout) == (130, "error: interrupted\n", "")
+    check = ("import signal, sys\nfrom oneshot.tools import cli\n"
+             "cli.run(lambda argv: print(signal.getsignal(signal.SIGINT) is signal.default_int_handler))")
+    done = subprocess.run([sys.executable, "-c", "import sys; sys.argv[:1] = ['-m']\n" + check],
+                          capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60)
+    assert (done.returncode, done.stdout) == (0, "True\n"), done.stderr
+
+
 def test_run_keeps_the_traceback_of_a_bug():
     def main(argv):
         return {}["missing"]

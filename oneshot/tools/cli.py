@@ -19,6 +19,7 @@ import signal
 import sys
 import tempfile
 
+from oneshot import interrupted_while_importing
 from oneshot.tools import files
 
 BAD_INPUT = (ValueError, FileNotFoundError, FileExistsError)   # DatasetError, files.RefusedPath are ValueErrors
@@ -217,9 +218,12 @@ def run(main, argv=None, failures=()):
              disk (ENOSPC) says so and what to do; MemoryError says to ask for less
         141  stdout's reader went away (a broken pipe, `| head`): nothing is printed
         130  KeyboardInterrupt ("interrupted", or its message: e.g. where training saved its checkpoint);
-             a plain kill (SIGTERM) is handled as Ctrl-C
+             a plain kill (SIGTERM) is handled as Ctrl-C, and so is Ctrl-C while the command was still
+             importing (`oneshot.interrupted_while_importing`)
     Anything else is a bug, and keeps its traceback.
     """
+    if signal.getsignal(signal.SIGINT) is interrupted_while_importing:   # the command's imports are done
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         return main(argv)
