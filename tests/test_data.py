@@ -427,3 +427,43 @@ def test_the_task_colours_are_a_seeded_draw_of_distinct_colours_of_the_split():
     assert collection.task_colours(5, "train", 0).tolist() == draws[0] and draws[0] != draws[1]
     for colours in draws.values():
         assert len(set(colours)) == 5 and set(colours) <= set(palette.split_colours("train").tolist())
+
+
+def test_command_line_collects_the_tasks_demos_palette_split_and_noise_it_was_given(tmp_path, capsys):
+    """Every demo `python -m oneshot.collect` stores is the one the expert records, with the asked DART noise,
+    on the stored seed in the asked palette's split (rebuilt here from the flags, not the file); the noise
+    changes the demos, and --tasks x --demos is the dataset's shape."""
+    out = tmp_path / "grid.npz"
+    collect.main(["--out", str(out), "--split", "test", "--tasks", "2", "--demos", "3", "--palette", "grid",
+                  "--noise", "0.2", "--image-size", "8", "--horizon", "8", "--workers", "1", "--seed", "2"])
+    d = datasets.load(out)
+    assert d["images"].shape[:2] == d["seeds"].shape == (2, 3) and d["metadata"]["expert"]["action_noise"] == 0.2
+    grid = PaletteConfig(mode="grid")
+    assert set(d["task_colours"].tolist()) <= set(palette.split_colours("test", grid).tolist())
+    world = ReachWorld(WorldConfig(image_size=8, horizon=8, palette=grid, split="test"))
+    for i, k in ((0, 0), (1, 2)):
+        options = {"target_colour": int(d["task_colours"][i])}
+        noisy = controller.demonstrate(world, seed=int(d["seeds"][i, k]), options=options,
+                                       cfg=controller.ExpertConfig(action_noise=0.2))
+        for name in ("images", "states", "actions"):
+            assert np.array_equal(noisy[name], d[name][i, k]), (name, i, k)
+        plain = controller.demonstrate(world, seed=int(d["seeds"][i, k]), options=options)
+        assert not np.array_equal(plain["states"], d["states"][i, k])
+
+
+@pytest.mark.parametrize("n_failing", [2, collection.MAX_ATTEMPTS - 1])
+def test_every_failed_attempt_is_counted_up_to_the_last_one(monkeypatch, n_failing):
+    """Demo 1 of task 0 fails on its first n scenes: n failed attempts (not 1 failed demo), success 4 / (4 + n),
+    and the seed of attempt n kept; the expert gets all MAX_ATTEMPTS tries, the last one too."""
+    world = WorldConfig(image_size=8, horizon=8)
+    failing = {collection.scene_seed(3, 0, 1, attempt) for attempt in range(n_failing)}
+    demonstrate = controller.demonstrate
+
+    def scenes_fail(*args, seed, **kwargs):
+        demo = demonstrate(*args, seed=seed, **kwargs)
+        return dict(demo, success=False) if seed in failing else demo
+    monkeypatch.setattr(controller, "demonstrate", scenes_fail)
+    data = collection.collect(2, 2, "train", seed=3, workers=1, world_cfg=world, progress=False)
+    assert data["metadata"]["failed_attempts"] == n_failing
+    assert data["metadata"]["expert_success_rate"] == pytest.approx(4 / (4 + n_failing))
+    assert data["seeds"][0, 1] == collection.scene_seed(3, 0, 1, n_failing)

@@ -87,6 +87,21 @@ def test_collect_uses_no_more_processes_than_cores_and_demos(capsys, tmp_path):
     assert f"with {used} process{'es' if used > 1 else ''} in" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("cores, workers, used", [(64, None, 4), (64, "3", 3), (2, "8", 2), (1, None, 1)])
+def test_collect_takes_the_fewest_of_workers_cores_and_demos(tmp_path, monkeypatch, cores, workers, used):
+    """The rule above on machines of any size (the test above cannot tell cores from demos on <= 4 cores)."""
+    class Stop(Exception):
+        pass
+
+    def spy(*args):
+        raise Stop(args[4])                                         # collect(tasks, demos, split, seed, workers, ...)
+    monkeypatch.setattr(collect.os, "cpu_count", lambda: cores)
+    monkeypatch.setattr(collect, "collect", spy)
+    with pytest.raises(Stop) as stopped:
+        collect.main(["--out", str(tmp_path / "d.npz"), *TINY[:-2], *(["--workers", workers] if workers else [])])
+    assert stopped.value.args == (used,)
+
+
 # --- 4. sizes: counts of zero, and what cannot fit in memory -----------------------------------------
 
 @pytest.mark.parametrize("flag", ["--demos", "--horizon"])

@@ -9,7 +9,9 @@ from PIL import Image
 
 from oneshot import demo
 from oneshot.expert import controller
+from oneshot.maml import imitation
 from oneshot.tools import viz
+from oneshot.training import checkpoint
 from oneshot.world import palette, render
 from oneshot.world.reach import ReachWorld, WorldConfig
 from oneshot.world.scene import Scene
@@ -230,3 +232,86 @@ def test_the_hue_wheel_puts_each_colour_on_its_splits_ring_at_its_hue():
         assert tuple(pixel(palette.colour_hue_deg(i), radius["train"])) == viz.BACKGROUND
     with pytest.raises(ValueError, match="hue_wheel draws the hues palette.*PaletteConfig\\(mode='hues'\\)"):
         viz.hue_wheel(palette.PaletteConfig(mode="grid"))
+
+
+def test_the_demo_adapts_each_colour_on_its_own_demo_and_counts_and_shows_what_it_ran(tmp_path, monkeypatch, capsys):
+    """`python -m oneshot.demo` checked against what it did, seen through spies on the expert, the adaptation,
+    the rollouts and the pictures: demos with the checkpoint's DART noise, seeded by --seed; each colour's
+    policy adapted on that colour's demo; every trial a new scene (evaluate's trial seeds), played by the
+    adapted and the unadapted policy; the counts those rollouts' own successes (re-judged from the hand's
+    path); the film strip's trials the adapted ones and the GIF's panels demo, before, after."""
+    ckpt = checkpoint.load(demo.PRETRAINED)
+    base, cfg = checkpoint.policy_params(ckpt), WorldConfig()
+    is_base = lambda policy: all(np.array_equal(policy[k], base[k]) for k in base)
+    real = dict(demonstrate=controller.demonstrate, prepare=imitation.prepare_demos, rollout=imitation.rollout,
+                filmstrip=viz.filmstrip, side_by_side=viz.side_by_side)
+    demos, events, shown = [], [], {}
+
+    class Stop(Exception):
+        pass
+
+    def first_demo_only(*args, **kwargs):
+        demos.append(kwargs["seed"])
+        raise Stop
+    monkeypatch.setattr(controller, "demonstrate", first_demo_only)
+    for seed in ("0", "1"):
+        with pytest.raises(Stop):
+            demo.main(["--out", str(tmp_path), "--seed", seed])
+    assert demos[0] != demos[1], "the demos' scenes ignore --seed"
+    demos.clear()
+
+    def demonstrate(*args, **kwargs):
+        d = real["demonstrate"](*args, **kwargs)
+        demos.append((kwargs["seed"], kwargs["cfg"], d))
+        return d
+
+    def prepare(images, *args):
+        events.append(("adapt", images))
+        return real["prepare"](images, *args)
+
+    def rollout(policy, world, seed, colour):
+        r = real["rollout"](policy, world, seed, colour)
+        events.append(("rollout", policy, seed, colour, r))
+        return r
+    monkeypatch.setattr(controller, "demonstrate", demonstrate)
+    monkeypatch.setattr(imitation, "prepare_demos", prepare)
+    monkeypatch.setattr(imitation, "rollout", rollout)
+    monkeypatch.setattr(viz, "filmstrip", lambda images, **kw: shown.setdefault("strip", images) and
+                        real["filmstrip"](images, **kw))
+    monkeypatch.setattr(viz, "side_by_side", lambda images, titles, **kw: shown.setdefault("gif", (images, titles)) and
+                        real["side_by_side"](images, titles, **kw))
+    result = demo.main(["--out", str(tmp_path), "--trials", "2", "--seed", "1"])
+
+    test_colours = palette.split_colours("test", cfg.palette)
+    assert [int(d["scene"].target_colour) for _, _, d in demos] == [int(c) for c in test_colours]
+    assert ckpt["config"].demo_noise > 0 and all(c.action_noise == ckpt["config"].demo_noise for _, c, _ in demos)
+    assert len({s for s, _, _ in demos}) == len(demos)
+    by_colour = {int(d["scene"].target_colour): d for _, _, d in demos}
+    adapted, unadapted = [], []
+    for i, (colour, d) in enumerate(by_colour.items()):       # per colour: adapt on its demo, then 2 x 2 rollouts
+        step = events[5 * i: 5 * i + 5]
+        assert step[0][0] == "adapt" and step[0][1] is d["images"], f"colour {i} adapted on another colour's demo"
+        for j, (a, u) in enumerate(zip(step[1::2], step[2::2])):
+            assert a[0] == u[0] == "rollout" and a[3] == u[3] == colour
+            assert a[2] == u[2] == imitation.trial_seed(1, i, j, "test")        # a new scene per trial, shared by both
+            assert not is_base(a[1]) and is_base(u[1])
+            adapted.append(a[4])
+            unadapted.append(u[4])
+    assert len(events) == 5 * len(by_colour)
+
+    def reached(r):                                           # the success criterion, on the final fifth
+        ee, target = r["end_effector"], r["scene"].positions[r["scene"].target]
+        return bool(np.linalg.norm(ee[-len(ee) // 5:] - target, axis=1).min() <= cfg.success_radius)
+    assert [r["success"] for r in adapted + unadapted] == [reached(r) for r in adapted + unadapted]
+    assert result == {"successes": sum(map(reached, adapted)), "trials": 2 * len(test_colours),
+                      "unadapted_successes": sum(map(reached, unadapted))}
+    assert f"{result['successes']}/{result['trials']} = " in capsys.readouterr().out
+    strip = shown["strip"]                                    # rows: a demo, then an adapted trial of its colour
+    picked = demo.shown_trials(np.reshape([reached(r) for r in adapted], (len(by_colour), 2)))   # chosen by them
+    assert [id(x) for x in strip] == [id(x) for i, j in picked
+                                      for x in (list(by_colour.values())[i]["images"], adapted[2 * i + j]["images"])]
+    images, titles = shown["gif"]
+    before = next(r for r in unadapted if r["images"] is images[1])
+    after = next(r for r in adapted if r["images"] is images[2])
+    assert before["scene"].positions.tolist() == after["scene"].positions.tolist()
+    assert titles[1].endswith(demo.outcome(before)) and titles[2].endswith(demo.outcome(after))
