@@ -80,7 +80,8 @@ def outcome(trial, cfg=WorldConfig()):
     the final fifth of the episode (`oneshot.world.reach.closest_object`): NEAR_MISS if the hand came
     within half cfg.min_separation (0.06 m) of the target's centre, DISTRACTOR if of a distractor's, else
     ASTRAY (it stopped between or beyond the discs). Within that radius the hand is near one disc at most.
-    But LEFT if the hand was within the success radius of the target before the final fifth (the demo once
+    But LEFT if the hand was ever within the success radius of the target (so, in a failed trial, before
+    the final fifth, where one step within it is a success; the demo once
     said "went to a distractor" of an arm that came within 11 mm of its target and swung away).
     (`oneshot.maml.imitation.one_shot_success` counts failures by the closest disc alone, however far.)
     trial: {"success", "end_effector" (T, 2) m, "scene"}; cfg: the WorldConfig of the trial's world.
