@@ -697,6 +697,9 @@ def test_a_work_folder_resumed_with_other_data_is_refused_once_before_collecting
     assert (f"argument --data: {ckpt} was trained on {os.path.abspath('d')}{os.sep}grid_train_c3_d4_s0.npz, not on "
             f"{os.path.abspath('e')}'s: pass --data {os.path.abspath('d')}, as its sweep did, or another --work" in err), err
     assert not os.path.exists("e")
+    context = dict(run_context(TINY, "d"), train_data=os.path.abspath(os.path.join("d", "other.npz")))
+    with pytest.raises(ValueError, match=r"not .*other\.npz: it is another sweep's run; name another --work$"):
+        folders.check_work_data(plan(TINY), "w", context)     # the same folder, another dataset
     assert command.main([*argv, "--data", "d"]) == 0
     row = json.loads(open(os.path.join("w", spec.run_id, sweep_rows.ROW_FILE)).read())
     sweep_rows.write_rows([row], os.path.join("o", "runs.csv"))            # the run is done: not checked

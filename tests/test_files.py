@@ -300,26 +300,30 @@ def test_readers_refuse_what_is_not_a_regular_file_without_reading_it(tmp_path, 
     assert mode_of(path) == before
 
 
+@pytest.mark.parametrize("kind", ["FIFO", "socket"])
 @pytest.mark.parametrize("action, mode", [("read", "rb"), ("write", "a"), ("write", "w"), ("write", "a+")])
-def test_a_fifo_put_in_a_files_place_after_the_first_look_is_refused_once_open(tmp_path, monkeypatch, action, mode):
-    """The look before opening passed (a regular file), then a FIFO took the file's place: opened without
-    blocking and refused, not waited on: on fstat, or ("a" and "w", which meet no reader there) on
-    os.open's ENXIO, which was an OSError (exit 1) saying "No such device or address". A pathlib.Path is
-    named as written, not PosixPath('...')."""
+def test_a_fifo_put_in_a_files_place_after_the_first_look_is_refused_once_open(tmp_path, monkeypatch, keep, kind,
+                                                                                action, mode):
+    """The look before opening passed (a regular file), then a FIFO or a socket took the file's place:
+    opened without blocking and refused, not waited on: on fstat, or on os.open's ENXIO ("a" and "w" meet
+    no reader at a FIFO; a socket cannot be opened), which was an OSError (exit 1) saying "No such device
+    or address", and then called every such thing a FIFO. A pathlib.Path is named as written, not
+    PosixPath('...')."""
     path = tmp_path / "log.jsonl"
     path.write_text("")
-    look = files.target
+    look, what = files.target, []
 
-    def then_a_fifo(*args):
+    def then_another_kind(*args):
         real = look(*args)
         os.remove(path)
-        os.mkfifo(path)
+        what.append(make(kind, path, keep))
         return real
-    monkeypatch.setattr(files, "target", then_a_fifo)
+    monkeypatch.setattr(files, "target", then_another_kind)
     signal.setitimer(signal.ITIMER_REAL, 2)                    # no_hang's alarm, sooner
-    with pytest.raises(files.RefusedPath, match=refusal(action, path, r"is a FIFO \(named pipe\)")):
+    with pytest.raises(files.RefusedPath) as refused_:
         files.open_read(path, mode) if action == "read" else files.open_write(path, mode)
-    assert stat.S_ISFIFO(os.lstat(path).st_mode)
+    assert re.match(refusal(action, path, what[0]), str(refused_.value)), str(refused_.value)
+    assert (stat.S_ISFIFO if kind == "FIFO" else stat.S_ISSOCK)(os.lstat(path).st_mode)
 
 
 def test_reading_through_a_link_to_a_regular_file_still_works(tmp_path, tiny_datasets):

@@ -50,7 +50,7 @@ host.die_with_parent(os.getppid(), signal.SIGTERM)
 armed = ctypes.c_int()
 ctypes.CDLL(None).prctl(2, ctypes.byref(armed))          # PR_GET_PDEATHSIG: what the kernel will send
 print(os.getpid(), armed.value, flush=True)
-time.sleep(5)
+time.sleep(60)                                          # the test kills it in its finally
 print("outlived its parent", flush=True)
 """
 
@@ -84,10 +84,11 @@ def test_a_worker_whose_parent_died_before_it_asked_exits_at_once():
 
 def test_tune_malloc_keeps_freed_memory_for_the_next_array():
     """What it is for: a freed array's memory stays in the process for the next one, rather than going back
-    to the OS to be page-faulted in again (untuned, a 64 MB array is unmapped when freed)."""
+    to the OS to be page-faulted in again (untuned, a 16 MB array is unmapped when freed; 16 MB is under
+    the 32 MB that older glibc allows as an mmap threshold)."""
     code = ("import os\nimport numpy as np\nfrom oneshot.tools import host\nhost.tune_malloc()\n"
             "def resident():\n    with open('/proc/self/statm') as f:\n        return int(f.read().split()[1])\n"
-            "before = resident()\nnp.ones(64 << 20, np.uint8)\n"                  # made, touched and freed
+            "before = resident()\nnp.ones(16 << 20, np.uint8)\n"                  # made, touched and freed
             "print((resident() - before) * os.sysconf('SC_PAGE_SIZE') >> 20)\n")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=ENV, timeout=60)
-    assert done.returncode == 0 and int(done.stdout) >= 60, (done.stdout, done.stderr)    # MB still held
+    assert done.returncode == 0 and int(done.stdout) >= 15, (done.stdout, done.stderr)    # MB still held

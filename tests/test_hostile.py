@@ -834,6 +834,12 @@ sys.meta_path.insert(0, CtrlCAtNumpy())
 """
 
 
+def default_ctrl_c():
+    """In the child: Ctrl-C as a terminal gives it, even when pytest runs as a background job (SIGINT ignored,
+    which a child inherits, and which `oneshot` rightly leaves alone)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize("module, argv", [("train", ["--help"]), ("experiments", ["fig2", "--help"])])
 def test_ctrl_c_while_a_command_imports_is_one_line_and_130(tmp_path, module, argv):
     """`python -m oneshot.train`, Ctrl-C in the first half second, while it imports NumPy: `error:
@@ -843,12 +849,12 @@ def test_ctrl_c_while_a_command_imports_is_one_line_and_130(tmp_path, module, ar
     (tmp_path / "sitecustomize.py").write_text(CTRL_C_AT_NUMPY)      # run by Python at start-up
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path), str(ROOT)]))
     done = subprocess.run([sys.executable, "-m", f"oneshot.{module}", *argv], capture_output=True, text=True,
-                          cwd=tmp_path, env=env, timeout=60)
+                          cwd=tmp_path, env=env, timeout=60, preexec_fn=default_ctrl_c)
     assert (done.returncode, done.stderr, done.stdout) == (130, "error: interrupted\n", "")
     check = ("import signal, sys\nfrom oneshot.tools import cli\n"
              "cli.run(lambda argv: print(signal.getsignal(signal.SIGINT) is signal.default_int_handler))")
-    done = subprocess.run([sys.executable, "-c", "import sys; sys.argv[:1] = ['-m']\n" + check],
-                          capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60)
+    done = subprocess.run([sys.executable, "-c", "import sys; sys.argv[:1] = ['-m']\n" + check], capture_output=True,
+                          text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60, preexec_fn=default_ctrl_c)
     assert (done.returncode, done.stdout) == (0, "True\n"), done.stderr
 
 

@@ -175,15 +175,19 @@ def open_write(path, mode="a", **kwargs):
 
 def _checked(action, path):
     """An `opener` for open(): os.open without blocking (a FIFO would block it), then fstat: anything
-    but a regular file is closed again and RefusedPath (as is a FIFO put in its place since `target`
-    looked, which os.open refuses to write without a reader: ENXIO)."""
+    but a regular file is closed again and RefusedPath (as is a FIFO or socket put in its place since
+    `target` looked, which os.open refuses: ENXIO)."""
     def opener(name, flags):
         try:
             fd = os.open(name, flags | os.O_NONBLOCK | os.O_CLOEXEC, 0o666)
         except OSError as e:
             if e.errno != errno.ENXIO:
                 raise
-            raise _refusal(action, path, os.path.realpath(path), stat.S_IFIFO) from None
+            try:                                     # a FIFO without a reader, or a socket
+                mode = os.stat(name).st_mode
+            except OSError:
+                mode = stat.S_IFIFO
+            raise _refusal(action, path, os.path.realpath(path), mode) from None
         try:
             mode = os.fstat(fd).st_mode
             if not stat.S_ISREG(mode):
