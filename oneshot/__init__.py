@@ -10,9 +10,9 @@ GYM_ENV_ID = "oneshot/Reach-v0"       # the world of paper Section IV as a Gymna
 
 
 def interrupted_while_importing(signum, frame):
-    """Ctrl-C while a command (e.g. `python -m oneshot.train`) imports, before `oneshot.tools.cli.run` takes over (which
-    puts Python's own handler back): the same one line and exit status 130 as cli.run's, not a
-    traceback through NumPy's imports."""
+    """Ctrl-C while a command (e.g. `python -m oneshot.train`) imports, before `oneshot.tools.cli.run`
+    takes over (which puts Python's own handler back): the same one line and exit status 130 as
+    cli.run's, not a traceback through NumPy's imports."""
     sys.stderr.write("error: interrupted\n")
     raise SystemExit(130)
 

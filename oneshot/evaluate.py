@@ -158,7 +158,6 @@ def main(argv=None):
     return results
 
 
-
 def _wrapped(head, items, width=100):
     """`head` and `items` joined by "; " on lines of at most `width` characters (unless one item is
     longer), each item whole, the continuation lines indented: 48 colours made one line of 2,000."""

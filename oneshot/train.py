@@ -123,7 +123,7 @@ def main(argv=None):
                          f"the {cfg.method} policy's {method.parameter_count(net_cfg):,} parameters (with their "
                          f"gradient, Adam's moments and the moving average)",
                          "use smaller --channels, --hidden, --bias-transform or --lstm-units")
-        cli.check_memory(cfg.meta_batch * (2 * frames * size * size * 3 * 4 + method.task_bytes(net_cfg, frames)),
+        cli.check_memory(cfg.meta_batch * method.task_bytes(net_cfg, frames),
                          f"a meta-batch of {cfg.meta_batch} tasks ({cfg.inner_steps} inner steps: their {frames}-frame "
                          f"images and the activations the meta-gradient keeps)",
                          f"use a smaller --meta-batch (the profile's: {PROFILES[profile].meta_batch}) or fewer "

@@ -47,7 +47,7 @@ def bench_setup(profile, image_size, T=20, **overrides):
                      f"{method.parameter_count(net_cfg):,} parameters and what a meta-iteration keeps of them",
                      "use a smaller --lstm-units")
     tasks = method.cfg.meta_batch
-    cli.check_memory(tasks * (2 * T * image_size ** 2 * 3 * 4 + method.task_bytes(net_cfg, T)),
+    cli.check_memory(tasks * method.task_bytes(net_cfg, T),
                      f"a meta-batch of {tasks} tasks ({method.cfg.inner_steps} inner steps: their images and the "
                      f"activations the meta-gradient keeps)", "use a smaller --meta-batch or fewer --inner-steps")
     return method, net_cfg, method.init_params(net_cfg, rng), rng

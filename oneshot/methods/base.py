@@ -58,17 +58,19 @@ class Method:
         return 4 * self.parameter_count(net_cfg) * (4 + (self.cfg.ema > 0))
 
     def task_bytes(self, net_cfg, frames):
-        """Bytes one task of a meta-batch holds during a meta-iteration, at most about: each forward pass
-        through its `frames` frames (one, or with eq. (1) one per inner step and one after) keeps its
-        activations (`network.activation_floats`, float32) for the gradient, and the backward pass and
-        autograd's bookkeeping as much again and more: 10 bytes a number. Measured, as the slope of peak
-        memory from meta-batch 4 to 16 (`python -m oneshot.benchmark maml --shards 1 --meta-batch N
-        --profile P` or `--line L`), against this: the smoke profile (3 steps) 21 MB a task (42), the
-        default (1 step) 10 MB (21), `mil-released+widths-flat+3steps` 28 MB (34), the LSTM 8.0 MB (10.5).
+        """Bytes one task of a meta-batch holds during a meta-iteration, at most about: the float32 images
+        of its two demonstrations, and for each forward pass through its `frames` frames (one, or with
+        eq. (1) one per inner step and one after) the activations it keeps for the gradient
+        (`network.activation_floats`, float32), with the backward pass and autograd's bookkeeping as much
+        again and more: 10 bytes a number. Measured, as the slope of peak memory from meta-batch 4 to 16
+        (`python -m oneshot.benchmark maml --shards 1 --meta-batch N --profile P` or `--line L`), against
+        this: the smoke profile (3 steps) 21 MB a task (43), the default (1 step) 10 MB (22),
+        `mil-released+widths-flat+3steps` 28 MB (34), the LSTM 8.0 MB (11).
         `train` refuses a meta-batch that would not fit (one of 1,000 had grown to 21 GB when the kernel
         killed it)."""
         passes = self.cfg.inner_steps + 1 if self.adapts else 1
-        return int(10 * network.activation_floats(net_cfg) * frames * passes)
+        images = 2 * frames * net_cfg.image_size ** 2 * net_cfg.image_channels * 4
+        return images + int(10 * network.activation_floats(net_cfg) * frames * passes)
 
     # --- meta-training ------------------------------------------------------------------------------
 
