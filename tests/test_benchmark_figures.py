@@ -189,6 +189,32 @@ def test_breakdown_times_the_training_processs_frames_plain_and_profiled_in_turn
     assert result["autograd_python_ms"] == 20.0 - (3 + 2 + 3 + 4)
 
 
+def test_breakdown_times_the_exchanges_after_two_warm_ups(monkeypatch):
+    """The whole meta-iteration on its processes, plain and profiled in turn after two warm-ups (one of
+    each, 1 s and 0.9 s inside 9 exchanges: counted in neither). Plain: 80 and 60 ms (iteration_ms 70);
+    profiled: 3 exchanges of 4 ms, then of 6 ms (exchange_ms 15, 3 per iteration). The pool is closed."""
+    clock, events = Clock(), []
+    work = [(1.0, 3, 0.1), (1.0, 9, 0.1), (0.050, 3, 0.010), (0.0, 3, 0.004), (0.030, 3, 0.010), (0.0, 3, 0.006)]
+
+    def exchange():
+        clock.take(exchange.seconds)
+
+    def meta_gradient(params, adapt, evaluate, pool):
+        assert isinstance(pool, Pool) and adapt[0].shape == (2, 20, 32, 32, 3)
+        compute, count, exchange.seconds = work.pop(0)
+        clock.take(compute)
+        for _ in range(count):
+            exchange()
+    method = SimpleNamespace(cfg=SimpleNamespace(meta_batch=2), make_pool=lambda: Pool(events),
+                             meta_gradient=meta_gradient)
+    monkeypatch.setattr(breakdown, "EXCHANGE", [exchange])
+    monkeypatch.setattr(breakdown, "time", SimpleNamespace(perf_counter=clock))
+    monkeypatch.setattr(breakdown, "cProfile", SimpleNamespace(Profile=lambda: cProfile.Profile(clock)))
+    result = breakdown._exchanges(method, {}, np.random.default_rng(0), 20, 32, 2)
+    assert result == {"iteration_ms": 70.0, "exchange_ms": 15.0, "exchanges_per_iteration": 3}
+    assert events == [("pool",), ("close",)]
+
+
 @pytest.mark.parametrize("adapts, run_s", [(True, 60.0), (False, 36.0)])
 def test_breakdown_prices_a_figure_2_runs_rollouts(monkeypatch, adapts, run_s):
     """Adapting to a demo takes 50 ms, a forward pass 2 ms, a rollout of 20 steps 0.1 s (5 ms a step). A

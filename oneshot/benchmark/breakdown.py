@@ -114,7 +114,7 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, rollo
 
 def _exchanges(method, params, rng, T, image_size, iterations):
     """The whole meta-iteration on its processes: median wall time and the training process's time
-    inside the exchanges (cProfile on every other iteration)."""
+    inside the exchanges (cProfile on every other iteration), after a warm-up of each kind."""
     keys, B = [_code_key(f) for f in EXCHANGE], method.cfg.meta_batch
     times, inside, pool = [], [], method.make_pool()
     try:
@@ -127,10 +127,13 @@ def _exchanges(method, params, rng, T, image_size, iterations):
             method.meta_gradient(params, a, e, pool)
             if profiler:
                 profiler.disable()
+            if i < 2:                                     # the warm-ups: one plain, one profiled
+                continue
+            if profiler:
                 stats = pstats.Stats(profiler).stats
                 inside.append((sum(1e3 * stats[k][3] for k in keys if k in stats),
                                sum(stats[k][1] for k in keys if k in stats)))
-            elif i >= 2:
+            else:
                 times.append(time.perf_counter() - t)
     finally:
         pool.close()
