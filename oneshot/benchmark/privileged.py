@@ -25,7 +25,8 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
     given="colour":   the target colour's RGB in [0, 1] is appended to every pixel (3 more input
                       channels to the first convolution; MIL's contextual policy gets a demo image there).
     Trains the policy network (`oneshot.policy.network`) on all demos of `train_data` with Adam, `batch`
-    demos per step, then runs it in `trials` new scenes of validation colours.
+    demos per step, then runs it in `trials` new scenes of validation colours, seeded by `seed` as
+    evaluate's trial scenes are (`imitation.trial_seed`).
     """
     if given not in ("position", "colour"):
         raise ValueError(f"given must be 'position' or 'colour'; got {given!r}")
@@ -70,7 +71,7 @@ def bench_privileged(given="colour", steps=3000, batch=16, trials=60, feature_po
                         np.repeat(target[ti, ki], T, 0), np.repeat(colours[ti], T, 0))
         params, adam = optim.adam_step(params, g(params, im, st, actions[ti, ki].reshape(-1, 2)), adam, lr)
     world = ReachWorld(dataclasses.replace(world_cfg, split="validation"))
-    wins = sum(imitation.rollout(policy, world, imitation.trial_seed(0, 0, j))["success"]
+    wins = sum(imitation.rollout(policy, world, imitation.trial_seed(seed, 0, j))["success"]
                for j in tqdm(range(trials), desc="validation trials"))
     return {"given": given, "feature_points": feature_points, "steps": steps, "batch_demos": batch,
             "seed": seed, "validation_trials": trials, "validation_success": wins / trials,
