@@ -89,6 +89,9 @@ GOOD = "mil-conv0,9,3,3,0,2,1.0,1,4,0.25,0.05,0.7,{}"
     (",".join(sweep_rows.COLUMNS) + "\nhello,world\n", "line 2: not a runs.csv row"),
     (",".join(sweep_rows.COLUMNS) + '\n' + GOOD.replace("{}", '"{""per_colour"":{""1"":')[:-1] + "\n", "line 2"),
     (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace(",2,1.0,", ",two,1.0,") + "\n", "line 2"),
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace(",1,4,", ",-1,4,") + "\n", "line 2: .*-1 successes in 4 trials"),
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace(",1,4,", ",0,0,") + "\n", "line 2: .*0 successes in 0 trials"),
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace("{}", "[]") + "\n", "line 2: .*its notes are not a JSON object"),
 ])
 def test_a_damaged_runs_csv_is_named_with_its_line(tmp_path, text, says):
     path = tmp_path / "runs.csv"
