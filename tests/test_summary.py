@@ -161,6 +161,17 @@ def test_summarise_pairs_and_labels_the_lines_in_the_summarys_order(tmp_path, fi
     assert fig.axes[0].get_ylabel() == "one-shot success, validation colours (%)"
 
 
+def test_summarise_reads_a_summary_whose_config_is_null_as_one_without(tmp_path):
+    """`"config": null`, which `load_results` takes for no config recorded: summarised as one without it
+    (every line, in LINES' order; the validation colours), not an AttributeError."""
+    rows = [_row("lstm", 0, 2), _row("mil-conv0", 0, 6)]
+    _results(tmp_path / "r", rows, None)
+    assert command.main(["summarise", str(tmp_path / "r")]) == 0
+    s = json.loads((tmp_path / "r" / "summary.json").read_text())
+    assert [(d["a"], d["b"], d["difference"]) for d in s["differences"]] == [("mil-conv0", "lstm", 0.5)]
+    assert s["config"] == {"score": "validation"} and (tmp_path / "r" / "fig2.png").exists() == command.PLOTS
+
+
 def test_summarise_refuses_a_folder_without_rows_and_keeps_its_summary(tmp_path, capsys):
     """A results folder whose runs.csv holds no row: exit 2 with one line, its summary.json left as it was
     (not replaced by a summary of nothing)."""

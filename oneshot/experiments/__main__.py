@@ -236,15 +236,15 @@ def _summarise(folder, argv):
     if not rows:
         print(f"error: {folder} holds no runs.csv rows to summarise", file=sys.stderr)
         return 2
-    lines = [m for m in before.get("config", {}).get("methods", LINES) if m in LINES]
+    config = dict(before.get("config") or {})          # none recorded (absent or null): {}
+    lines = [m for m in config.get("methods", LINES) if m in LINES]
     summary = summarise(rows, None, before.get("command"), _pairs(lines))
-    config = dict(before.get("config") or {})
     config.setdefault("score", "validation")   # a sweep from before the test split scored what is now validation
     summary.update(config=config, summarised_by="python -m oneshot.experiments " + shlex.join(argv))
     write_summary(summary, os.path.join(folder, "summary.json"))
     print(f"{len(rows)} runs: {os.path.join(folder, 'summary.json')}")
     if PLOTS:
-        name = (before.get("config") or {}).get("name", "")
+        name = config.get("name", "")
         n = len({r["seed"] for r in rows})
         plot(summary, os.path.join(folder, "fig2.png"), _labels(lines),
              title=f"Figure 2 ({name} profile, {n} seed{'s' * (n > 1)})")
