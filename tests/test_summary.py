@@ -172,6 +172,16 @@ def test_summarise_reads_a_summary_whose_config_is_null_as_one_without(tmp_path)
     assert s["config"] == {"score": "validation"} and (tmp_path / "r" / "fig2.png").exists() == command.PLOTS
 
 
+@pytest.mark.parametrize("config", [None, {}, {"name": ""}])
+def test_summarises_figure_names_no_profile_when_none_is_recorded(tmp_path, figures, config):
+    """A summary that records no profile name: its figure's title counts the seeds and names no profile
+    ("Figure 2 (1 seed)", not "Figure 2 ( profile, 1 seed)")."""
+    _results(tmp_path / "r", [_row("lstm", 0, 2), _row("mil-conv0", 0, 6)], config)
+    assert command.main(["summarise", str(tmp_path / "r")]) == 0
+    (fig,) = figures
+    assert fig.axes[0].get_title() == "Figure 2 (1 seed)"
+
+
 def test_summarise_refuses_a_folder_without_rows_and_keeps_its_summary(tmp_path, capsys):
     """A results folder whose runs.csv holds no row: exit 2 with one line, its summary.json left as it was
     (not replaced by a summary of nothing)."""

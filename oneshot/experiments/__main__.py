@@ -244,10 +244,10 @@ def _summarise(folder, argv):
     write_summary(summary, os.path.join(folder, "summary.json"))
     print(f"{len(rows)} runs: {os.path.join(folder, 'summary.json')}")
     if PLOTS:
-        name = config.get("name", "")
         n = len({r["seed"] for r in rows})
+        name = f"{config['name']} profile, " if config.get("name") else ""     # none recorded: no name
         plot(summary, os.path.join(folder, "fig2.png"), _labels(lines),
-             title=f"Figure 2 ({name} profile, {n} seed{'s' * (n > 1)})")
+             title=f"Figure 2 ({name}{n} seed{'s' * (n > 1)})")
     return 0
 
 
