@@ -363,6 +363,16 @@ def test_a_near_miss_shows_the_digits_that_differ_and_no_relation_that_is_not_th
     assert "transpose" in compare(np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([[1.0, 3.0], [2.0, 4.0]]), out).message
 
 
+def test_a_result_passes_only_as_a_number_of_the_right_kind_within_the_relative_tolerance():
+    """The tolerance is relative (rtol 1e-6): a small number is not "close" to one twice its size because
+    both are near 0; True is not the number 1, nor a complex array its real part."""
+    number, array = Out("number", "your loss"), Out("array", "your K")
+    assert compare(2e-8 * (1 + 1e-7), 2e-8, number) is None
+    assert compare(1e-8, 2e-8, number).message.startswith("your loss is 1e-08; expected 2e-08")
+    assert compare(True, 1.0, number).message == "your loss is True; expected a single number"
+    assert compare(np.array([1.0 + 1.0j, 2.0]), np.array([1.0, 2.0]), array).message.startswith("your K is an array")
+
+
 def test_a_hint_about_raising_is_not_added_to_a_wrong_value():
     """A case's hint about an error ("autograd cannot differentiate ...") is not given for a wrong
     value that no mistake explains: here an update right in value whose derivative is 1.5 times too

@@ -5,8 +5,10 @@ of notebooks/exercises/, filled in as students would."""
 import copy
 import csv
 import inspect
+import io
 import json
 import os
+import shutil
 import stat
 from pathlib import Path
 
@@ -14,6 +16,7 @@ import pytest
 
 from oneshot.exercises import EXERCISES, solutions
 from oneshot.exercises import __main__ as cli_main
+from oneshot.exercises.grading import Graded
 from oneshot.tools import cli
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks" / "exercises"
@@ -168,3 +171,83 @@ def test_the_gradebook_is_written_through_links_and_never_to_a_device(tmp_path):
             cli.run(cli_main.main, ["grade", str(tmp_path), flag, str(tmp_path / "alice.py")])
         assert e.value.code == 2 and (tmp_path / "alice.py").read_text() == "x = 1\n"
     assert stat.S_ISCHR(os.stat(os.devnull).st_mode)                 # still the device
+
+
+def test_the_gradebooks_columns_for_hand_made_grades():
+    """Three students, graded by hand: each column as the module's docstring defines it. A student's name
+    keeps its inner dots ("jean.luc.py" is jean.luc; a folder "carol.v2/" keeps its dot); a load error is
+    the notes, with 0 points and the assignment's max_score; text a spreadsheet would run as a formula
+    (=, +, -, @, a tab or a carriage return first) is quoted with a leading '."""
+    from oneshot.exercises import gradebook
+    from oneshot.exercises.grading import Graded
+    graded = [Graded("jean.luc.py", [5, 9], {5: "correct", 9: "flagged: your wilson_interval calls x"}),
+              Graded("carol.v2/", [5, 9], load_error="could not load a.py: SyntaxError: invalid syntax"),
+              Graded("+1.ipynb", [5, 9], {5: "not yet: ...", 9: "correct"})]
+    rows = list(csv.DictReader(io.StringIO(gradebook.csv_text(graded, [5, 9]))))
+    assert [(r["student"], r["submission"]) for r in rows] == [("jean.luc", "jean.luc.py"), ("carol.v2", "carol.v2/"),
+                                                                ("'+1", "'+1.ipynb")]
+    assert [(r["exercise_5"], r["exercise_9"], r["total"], r["max_score"], r["flagged"]) for r in rows] == \
+        [("1", "0", "1", "2", "9"), ("0", "0", "0", "2", ""), ("0", "1", "1", "2", "")]
+    assert [r["notes"] for r in rows] == ["9 flagged", "could not load a.py: SyntaxError: invalid syntax", "5 not yet"]
+    for text in ("=1+1", "+1", "-1", "@SUM(A1)", "\tx", "\rx"):
+        assert gradebook._safe(text) == "'" + text
+    assert gradebook._safe("alice") == "alice" and gradebook._safe(3) == 3
+    students = json.loads(gradebook.json_text(graded, [5, 9]))["students"]
+    assert [(s["student"], s["total"], s["max_score"], s["points"]) for s in students] == \
+        [("jean.luc", 1, 2, {"5": 1, "9": 0}), ("carol.v2", 0, 2, {"5": 0, "9": 0}), ("+1", 1, 2, {"5": 0, "9": 1})]
+
+
+def test_what_is_and_is_not_a_submission(tmp_path, monkeypatch):
+    """Names starting with "_" or "." are the teacher's (a template, a hidden file), not submissions; a
+    folder past MAX_BYTES, or a notebook past it, is refused in words, not copied."""
+    from oneshot.exercises import submissions
+    for name in ("alice.py", "_template.py", ".hidden.py", "bob.ipynb"):
+        (tmp_path / name).write_text("x = 1\n" if name.endswith(".py") else notebook("03_baselines.ipynb"))
+    assert [p.name for p in submissions.submissions(tmp_path)] == ["alice.py", "bob.ipynb"]
+    (tmp_path / "carol").mkdir()
+    (tmp_path / "carol" / "a.py").write_text("x = 1\n")
+    (tmp_path / "carol" / "data.bin").write_bytes(bytes(3000))
+    monkeypatch.setattr(submissions, "MAX_BYTES", 2000)
+    for path, words in ((tmp_path / "carol", "carol holds more than"),
+                        (tmp_path / "bob.ipynb", "bob.ipynb is larger than")):
+        (tmp_path / "copy").mkdir()
+        with pytest.raises(submissions.SubmissionError, match=words):
+            submissions.working_copy(path, tmp_path / "copy")
+        shutil.rmtree(tmp_path / "copy")
+
+
+def test_a_notebook_runs_as_run_all_does(tmp_path):
+    """Its code cells in order, numbered among all its cells from 1 (as Jupyter shows them), going on after
+    a cell that raises, even SystemExit (a scratch `exit()`); an nbformat 3 notebook too (worksheets,
+    "input")."""
+    from oneshot.exercises import submissions
+    cells = [{"cell_type": "markdown", "source": "# title"},
+             {"cell_type": "code", "source": "def f():\n    return 1\n"},
+             {"cell_type": "code", "source": ["raise SystemExit(0)"]},
+             {"cell_type": "code", "source": "def g():\n    return 2\n"}]
+    v3 = [{**c, "input": c.pop("source")} if c["cell_type"] == "code" else c for c in copy.deepcopy(cells)]
+    for nb in ({"nbformat": 4, "cells": cells}, {"nbformat": 3, "worksheets": [{"cells": v3}]}):
+        (tmp_path / "n.ipynb").write_text(json.dumps(nb))
+        assert [number for number, _ in submissions.notebook_cells(tmp_path / "n.ipynb")] == [2, 3, 4]
+        namespace = {}
+        exec(submissions.notebook_code(tmp_path / "n.ipynb"), namespace)
+        assert namespace["f"]() == 1 and namespace["g"]() == 2
+        assert [(n, type(e).__name__) for n, e in namespace["__notebook_errors__"]] == [(3, "SystemExit")]
+
+
+def test_the_limits_given_on_the_command_line_reach_the_grader(tmp_path, monkeypatch):
+    """--timeout and --memory are the sandbox's limits for grade and check; an exercise that does not exist
+    is a one-line error, not a traceback from the grader."""
+    from oneshot.exercises.sandbox import Limits
+    (tmp_path / "alice.py").write_text("x = 1\n")
+    seen = []
+    monkeypatch.setattr(cli_main, "grade", lambda folder, numbers, limits, jobs, found: seen.append(limits) or [])
+    monkeypatch.setattr(cli_main, "grade_submission", lambda path, numbers, limits, hidden: seen.append(limits) or
+                        Graded("alice.py", numbers, {numbers[0]: "correct"}))
+    assert cli_main.main(["grade", str(tmp_path), "--timeout", "3", "--memory", "600"]) == 0
+    assert cli_main.main(["check", "9", "--file", str(tmp_path / "alice.py"), "--timeout", "4", "--memory", "700"]) == 0
+    assert seen == [Limits(timeout=3.0, memory_mb=600), Limits(timeout=4.0, memory_mb=700)]
+    for bad in ("11", "0,5", ""):
+        with pytest.raises(SystemExit) as stop:
+            cli_main.main(["grade", str(tmp_path), "--exercises", bad])
+        assert stop.value.code == 2

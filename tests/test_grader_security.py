@@ -1,13 +1,18 @@
 """The grader is a security boundary (issue 30, class 7): a class of hostile submissions, graded as a
 teacher would (`python -m oneshot.exercises grade DIR`), and what each must NOT achieve: fake verdicts
-printed to stdout, wrappers around the package's own answers, a patched judge, files written or
-deleted outside its copy, a process that outlives the grading (even in a session of its own, even when
-the grader is killed), unlimited memory or processes, a student's numpy.py run by the grader itself,
+printed to stdout, wrappers around the package's own answers (even ones that catch the tripwire), a
+patched judge, files written or deleted outside its copy, another student's file read or linked in, the
+teacher's environment seen, a process that outlives the grading (even in a session of its own, even
+when the grader is killed), unlimited memory, CPU, files or processes, a student's numpy.py run by the
+grader itself, a frame or text from the sandbox that crashes the grader or the teacher's terminal,
 `check` taking sys.exit(0) for success, and flags that make no sense. An honest submission in the same
 class is graded correct, so the confinement does not break what it must not."""
 import ctypes
+import errno
 import json
 import os
+import re
+import resource
 import signal
 import subprocess
 import sys
@@ -111,13 +116,18 @@ def is_success(end_effector, target, success_radius=0.05):
     raise RuntimeError("could " + " ".join(f"{{k}}{{v}}" for k, v in flags.items()))
 """
 ESCAPER = """
-import ctypes, os
+import ctypes, os, time
 if os.fork() == 0:                           # a grandchild in a session of its own, spinning
     os.setsid()
     if os.fork() == 0:
         ctypes.CDLL(None).prctl(15, b"escapee-{tag}", 0, 0, 0)
         while True:
             pass
+    os._exit(0)
+if os.fork() == 0:                           # a child, sleeping, with a child of its own: the supervisor
+    os.fork()                                # adopts the grandchild only once it has killed the child
+    ctypes.CDLL(None).prctl(15, b"escapee-{tag}", 0, 0, 0)
+    time.sleep(60)
     os._exit(0)
 ctypes.CDLL(None).prctl(15, b"escapee-{tag}", 0, 0, 0)     # the process that loads it: marked too
 def is_success(end_effector, target, success_radius=0.05):
@@ -143,6 +153,45 @@ for _ in range(100):
     spawned += 1
 raise RuntimeError(f"spawned {spawned}")
 """
+PROBE = """
+import math, os, resource, signal
+import numpy as np
+import oneshot.world.reach as reach
+def is_success(end_effector, target, success_radius=0.05):
+    try:
+        reach.is_success(end_effector, target, success_radius)      # the package's answer, its trip caught
+    except BaseException:
+        pass
+    e = np.asarray(end_effector)
+    return bool(np.linalg.norm(e[-max(1, len(e) // 5):] - target, axis=-1).min() <= success_radius)
+def conv2d(x, w, b, stride):                     # what the sandbox looks like from inside, in words
+    facts = [f"secret={int(any('teacher-secret' in v for v in os.environ.values()))}",
+             f"session={int(os.getsid(0) == os.getppid())}", f"cpu={resource.getrlimit(resource.RLIMIT_CPU)[0]}",
+             f"fsize={resource.getrlimit(resource.RLIMIT_FSIZE)[0]}",
+             f"core={resource.getrlimit(resource.RLIMIT_CORE)[0]}"]
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (1000, hard))
+    try:
+        with open("mine.bin", "wb") as f:        # in its working copy: allowed, up to the file-size limit
+            f.write(b"x" * 2000)
+        facts.append("write=ok")
+    except OSError as e:
+        facts.append(f"write={e.errno}")
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+    raise RuntimeError(" ".join(facts))
+def contextual_input(images, demo_images):
+    print("a line before the last", flush=True)
+    print("the last line \\x1b[31m", flush=True)
+    os.kill(os.getpid(), signal.SIGKILL)
+def wilson_interval(successes, trials, z=1.96):
+    os.write(1, b"what a C library prints\\n")    # fd 1 is the log, not the grader's channel
+""" + RIGHT_9.split("z=1.96):\n", 1)[1] + """
+def lstm_step(w_h, xw, h, c):
+    return np.zeros(1 << 20), np.zeros(1)        # 8 MB: more than an answer's share of a frame
+"""
+SECOND = "def wilson_interval(successes, trials, z=1.96):\n    return 0.0, 1.0\n"
+IMPORTER = RIGHT_9 + "import oneshot.exercises\noneshot.exercises.reference(9)(1, 2)\n"
 EXITS = {"sys_exit": "import sys\ndef is_success(e, t, r=0.05):\n    sys.exit(0)\n",
          "os_exit": "import os\ndef is_success(e, t, r=0.05):\n    os._exit(0)\n"}
 
@@ -167,14 +216,24 @@ def _kill_marked(tag):
             pass
 
 
-def _grade_command(*args, cwd=None, timeout=120):
+def _grade_command(*args, cwd=None, timeout=120, env=ENV, preexec_fn=None):
     return subprocess.run([sys.executable, "-m", "oneshot.exercises", *args], capture_output=True, text=True,
-                          env=ENV, cwd=cwd, timeout=timeout)
+                          env=env, cwd=cwd, timeout=timeout, preexec_fn=preexec_fn)
+
+
+def _allow_core_files():
+    """In the grader's process: core files of up to 1 MB, as a teacher's shell may allow (`ulimit -c`)."""
+    hard = resource.getrlimit(resource.RLIMIT_CORE)[1]
+    soft = 1 << 20 if hard == resource.RLIM_INFINITY else min(1 << 20, hard)
+    resource.setrlimit(resource.RLIMIT_CORE, (soft, hard))
 
 
 @pytest.fixture(scope="module")
 def graded(tmp_path_factory):
-    """One grading of a class of hostile submissions: (verdict(who, n), the output, the folder)."""
+    """One grading of a class of hostile submissions: (verdict(who, n), the output, the folder). The class
+    is in a folder on the grader's sys.path (a course repository on PYTHONPATH), which the sandbox may
+    read: only the grader's hiding keeps one submission from reading another's; and the teacher's
+    environment holds a secret, and allows core files."""
     base = tmp_path_factory.mktemp("class")
     folder, outside = base / "submissions", base / "outside"
     folder.mkdir()
@@ -185,11 +244,17 @@ def graded(tmp_path_factory):
                "writer.py": WRITER.format(owned=str(outside / "owned.txt"), victim=str(outside / "victim.txt"),
                                           other=str(folder / "alice.py")),
                "escaper.py": ESCAPER.format(tag=tag), "hog.py": HOG, "forker.py": FORKER, "talker.py": TALKER,
-               "attempter.py": ATTEMPTER}
+               "attempter.py": ATTEMPTER, "probe.py": PROBE, "importer.py": IMPORTER}
     for name, source in sources.items():
         (folder / name).write_text(source)
+    for name, source in (("kate/a.py", RIGHT_9), ("kate/b.py", SECOND), ("mallory/main.py", "from answer import *\n")):
+        (folder / name).parent.mkdir(exist_ok=True)
+        (folder / name).write_text(source)
+    (folder / "mallory" / "answer.py").symlink_to(folder / "alice.py")        # another student's answers
+    env = {**ENV, "PYTHONPATH": os.pathsep.join((ROOT, str(base))), "TEACHER_TOKEN": "teacher-secret"}
     try:
-        run = _grade_command("grade", str(folder), "--timeout", "2", "--jobs", "2")
+        run = _grade_command("grade", str(folder), "--timeout", "2", "--jobs", "2", env=env,
+                             preexec_fn=_allow_core_files)
         time.sleep(0.2)
         survivors = _marked(f"escapee-{tag}")
     finally:
@@ -204,6 +269,10 @@ def graded(tmp_path_factory):
 
 def total(output, who):
     return next(line.split(None, 2)[2] for line in output.splitlines() if line.split()[:2] == [who, "total"])
+
+
+def load_error(output, who):
+    return next(line.split(None, 2)[2] for line in output.splitlines() if line.split()[:2] == [who, "-"])
 
 
 def test_an_honest_submission_is_still_graded_correct(graded):
@@ -254,6 +323,67 @@ def test_printing_past_the_file_size_limit_costs_nothing(graded):
     27, file too large) inside the student's function, and a correct submission scored 0."""
     verdict, _, _, _ = graded
     assert verdict("talker.py", 1) == "correct" and verdict("talker.py", 9) == "correct"
+
+
+def test_a_tripwire_caught_by_the_submission_still_flags_it_and_only_that_exercise(graded):
+    """probe.py's is_success calls the package's answer, catches what it raises, and returns its own right
+    value: flagged all the same; its conv2d, the next exercise in the same sandbox, is judged on what it
+    did (it raised), not flagged."""
+    verdict, _, _, _ = graded
+    assert verdict("probe.py", 1).startswith("flagged: your is_success calls oneshot.world.reach.is_success, ")
+    assert verdict("probe.py", 4).startswith("not yet: your conv2d raised RuntimeError: secret=")
+
+
+def test_the_sandbox_is_confined_as_its_docstring_says(graded):
+    """What probe.py's conv2d saw from inside (timeout 2 s, 10 exercises): none of the teacher's environment
+    (a secret in it), a session of its own (its supervisor's), CPU time at most the wall-clock budget of
+    the ten exercises, files of at most 64 MB and no core files (the teacher's shell allows 1 MB of them),
+    and its working copy writable, where a write past the file-size limit (lowered to 1000 bytes by the
+    probe) fails with OSError EFBIG, which the student's code can catch."""
+    verdict, _, _, _ = graded
+    facts = dict(re.findall(r"(\w+)=(-?\d+|ok)", verdict("probe.py", 4)))
+    assert facts["secret"] == "0" and facts["session"] == "1", facts
+    assert 0 < int(facts["cpu"]) <= 2 * (10 + 1) + 2 and 0 < int(facts["fsize"]) <= 64 << 20, facts
+    assert facts["core"] == "0" and facts["write"] == str(errno.EFBIG), facts
+
+
+def test_a_crash_shows_its_signal_and_its_last_line_made_safe(graded):
+    """probe.py's contextual_input prints two lines, the last with an escape sequence, and kills itself:
+    the verdict names the signal and the LAST line, its escape made '?'."""
+    verdict, output, _, _ = graded
+    assert verdict("probe.py", 8) == "crashed Python (killed by SIGKILL: the last line ?[31m)"
+    assert "\x1b" not in output
+
+
+def test_what_a_submission_writes_to_fd_1_does_not_reach_the_grader(graded):
+    """os.write(1, ...), as a C library's printf does: fd 1 is the log, so wilson_interval is still correct."""
+    verdict, _, _, _ = graded
+    assert verdict("probe.py", 9) == "correct"
+
+
+def test_an_answer_too_large_for_the_channel_is_said_to_be_so(graded):
+    """8 MB per case, 3 cases: each answer is replaced by words, and the verdict says what happened,
+    instead of a frame too large for the channel ("wrote into the grader's channel")."""
+    verdict, _, _, _ = graded
+    assert re.fullmatch(r"not yet: on a batch of 3, 4 units, your function returns a result of more than \d+ MB; "
+                        r"expected a tuple of 2: \(h', c'\)", verdict("probe.py", 10)), verdict("probe.py", 10)
+
+
+def test_a_folder_is_graded_on_its_own_files_only(graded):
+    """kate/: a.py right, b.py wrong, both defining wilson_interval: the first in name order counts.
+    mallory/: main.py imports answer.py, a symbolic link to alice.py, another student's file: the link
+    is neither copied nor loaded, so main.py cannot import it."""
+    verdict, output, _, _ = graded
+    assert verdict("kate/", 9) == "correct"
+    assert load_error(output, "mallory/") == "could not load main.py: ModuleNotFoundError: No module named 'answer'"
+    assert total(output, "mallory/") == "0/10 correct, 0 attempted"
+
+
+def test_calling_the_package_as_it_loads_is_a_load_error(graded):
+    """importer.py defines wilson_interval, then calls reference(9) at import: not graded on what it defined."""
+    _, output, _, _ = graded
+    assert load_error(output, "importer.py") == ("could not load importer.py: PackageUsed: oneshot.exercises.solutions."
+                                                 "wilson_interval is the package's own answer: write your own")
 
 
 def test_memory_is_limited(graded):
@@ -359,6 +489,65 @@ def test_the_grader_reads_only_values_from_the_sandbox():
     with pytest.raises(wire.WireError):
         frames.feed(b"\xff\xff\xff\xff")               # a 4 GB frame is refused before it is read
     assert wire.clean("ok\x1b[2J\nalice.py  1  correct") == "ok?[2J?alice.py  1  correct"
+
+
+def test_the_grader_refuses_frames_that_would_crash_it():
+    """What only a submission writing into the channel itself could send: each is a WireError (the
+    sandbox's ending "channel", scored 0), never an exception that ends the grading of the class: a result
+    with fewer or more outcomes than the exercise has cases (judge would index past them), a frame that
+    is a JSON list, an array shape of negative numbers NumPy cannot reshape to, or one nested too deeply."""
+    from oneshot.exercises import CHECKERS, grading, wire
+    right = {"value": {"tuple": [0.5, 0.75]}, "changed": None}
+    cases = len(CHECKERS[9].cases())
+    assert len(grading._valid({"event": "result", "exercise": 9, "outcomes": [right] * cases}, 9)["outcomes"]) == cases
+    for count in (1, cases - 1, cases + 1):
+        with pytest.raises(wire.WireError):
+            grading._valid({"event": "result", "exercise": 9, "outcomes": [right] * count}, 9)
+    with pytest.raises(wire.WireError):
+        wire.Frames().feed(b"\x00\x00\x00\x03[1]")
+    with pytest.raises(wire.WireError):
+        wire.decode({"array": "<f8", "shape": [-2, -1], "data": "AAAAAAAAAAAAAAAAAAAAAA=="})     # 16 bytes
+    deep = 1.0
+    for _ in range(wire.MAX_DEPTH + 2):
+        deep = {"list": [deep]}
+    with pytest.raises(wire.WireError):
+        wire.decode(deep)
+
+
+def test_the_sandboxs_words_are_made_safe_before_the_grader_prints_them():
+    """A load error, a notebook's notes and a submission's file name, as the sandbox or the teacher's folder
+    give them, reach the terminal and the gradebook without control characters (an escape sequence could
+    clear the screen or recolour a fake verdict)."""
+    from oneshot.exercises import grading
+    message = "could not load x.py: \x1b[2Jx.py  9  correct"
+    loaded = grading._valid({"event": "load-error", "message": message}, "loaded")
+    assert loaded["message"] == "could not load x.py: ?[2Jx.py  9  correct"
+    notes = grading._valid({"event": "loaded", "notes": ["cell 3 raised \x1b[31mOops\rok", 5]}, "loaded")["notes"]
+    assert notes == ["cell 3 raised ?[31mOops?ok"]
+    assert grading._label("/class/\x1b[2Jeve\n.py") == "?[2Jeve?.py"
+
+
+def test_a_function_not_written_on_every_case_is_not_a_stub():
+    """"not written" (not counted as attempted) is the stub as handed out, raising NotImplementedError on
+    every case; a function that raises it on one case only is attempted, and not yet right."""
+    from oneshot.exercises import CHECKERS, grading
+    from oneshot.exercises.checking import Outcome
+    cases = len(CHECKERS[9].cases())
+    stub = grading.verdict(9, [Outcome(not_written=True)] * cases)
+    assert stub == "not written: wilson_interval raises NotImplementedError, as the stub does"
+    partial = grading.verdict(9, [Outcome(not_written=True)] + [Outcome(value=(0.0, 1.0))] * (cases - 1))
+    assert partial == "not yet: wilson_interval is not written yet (it raises NotImplementedError)"
+    one = grading.Graded("x.py", [9, 1], {9: partial, 1: "missing"})
+    assert grading.report(one)[-1].endswith("total  0/2 correct, 1 attempted")
+
+
+def test_the_sandbox_may_read_python_even_when_the_class_folder_holds_it(tmp_path):
+    """The class's folder is hidden from the sandbox, and the package's source always is; but a folder
+    that holds Python itself (grading from /, or from a home holding the virtualenv) is not, or no
+    submission could even start."""
+    from oneshot.exercises import sandbox
+    assert sandbox._hidden([tmp_path]) == [sandbox.PACKAGE, os.path.realpath(tmp_path)]
+    assert sandbox._hidden([os.path.dirname(sys.prefix), "/"]) == [sandbox.PACKAGE]
 
 
 def test_the_log_keeps_its_newest_megabyte_and_is_a_real_text_stream(tmp_path):
