@@ -6,7 +6,6 @@ import cProfile
 import dataclasses
 import json
 import pstats
-import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -115,6 +114,7 @@ def test_maml_times_a_peer_on_every_core_without_our_shard_processes(monkeypatch
     assert result["seconds_per_iteration"] == 0.2
     with pytest.raises(ValueError, match="--peer times MIL's meta-gradient, not a baseline's"):
         maml.bench_meta_iteration(1, "smoke", peer="torch", method="lstm")
+    assert events == ["torch", 4, "peer", "peer", "peer", 4]           # no peer built, no ceiling timed
 
 
 def test_the_ceiling_is_the_median_products_rate(monkeypatch):
@@ -169,14 +169,23 @@ def test_breakdown_times_the_training_processs_frames_plain_and_profiled_in_turn
     """After two warm-ups, plain runs (30, 10, 20 ms: part_ms 20) alternate with profiled ones, whose
     groups are the medians over the profiled runs; autograd's Python is the rest of the part's time. With
     3 shards, the training process's part is the last block of frames: 7 of 20 (bounds 0, 6, 13, 20)."""
-    clock, seen = Clock(), []
+    clock, seen, profiling = Clock(), [], []
     durations = [1.0, 1.0, 0.030, 0.5, 0.010, 0.5, 0.020, 0.5]
     groups = [dict(zip(breakdown.GROUPS, v), other_layer_primitives=o) for *v, o in
               [(1, 2, 3, 4), (5, 6, 7, 8), (3, 2, 1, 0)]]
 
+    class Profile:              # a fake: from Python 3.12, sys.getprofile() is None under cProfile
+        def enable(self):
+            profiling.append(self)
+
+        def disable(self):
+            profiling.remove(self)
+
     def part(params, adapt, evaluate, settings):
-        seen.append((adapt[0].shape[:2], evaluate[2].shape[:2], isinstance(sys.getprofile(), cProfile.Profile)))
+        seen.append((adapt[0].shape[:2], evaluate[2].shape[:2], bool(profiling)))
         clock.take(durations.pop(0))
+    monkeypatch.setattr(breakdown, "cProfile", SimpleNamespace(Profile=Profile))
+    monkeypatch.setattr(breakdown, "pstats", SimpleNamespace(Stats=lambda profiler: SimpleNamespace(stats={})))
     monkeypatch.setattr(breakdown, "shards", SimpleNamespace(split_frames=shards.split_frames, part=part))
     monkeypatch.setattr(breakdown, "_grouped_ms", lambda stats, keys: groups.pop(0))
     monkeypatch.setattr(breakdown, "time", SimpleNamespace(perf_counter=clock))
@@ -192,9 +201,9 @@ def test_breakdown_times_the_training_processs_frames_plain_and_profiled_in_turn
 def test_breakdown_times_the_exchanges_after_two_warm_ups(monkeypatch):
     """The whole meta-iteration on its processes, plain and profiled in turn after two warm-ups (one of
     each, 1 s and 0.9 s inside 9 exchanges: counted in neither). Plain: 80 and 60 ms (iteration_ms 70);
-    profiled: 3 exchanges of 4 ms, then of 6 ms (exchange_ms 15, 3 per iteration). The pool is closed."""
+    profiled: 3 exchanges of 4 ms, then 5 of 3.6 ms (exchange_ms 15, 4 per iteration). The pool is closed."""
     clock, events = Clock(), []
-    work = [(1.0, 3, 0.1), (1.0, 9, 0.1), (0.050, 3, 0.010), (0.0, 3, 0.004), (0.030, 3, 0.010), (0.0, 3, 0.006)]
+    work = [(1.0, 3, 0.1), (1.0, 9, 0.1), (0.050, 3, 0.010), (0.0, 3, 0.004), (0.030, 3, 0.010), (0.0, 5, 0.0036)]
 
     def exchange():
         clock.take(exchange.seconds)
@@ -211,7 +220,7 @@ def test_breakdown_times_the_exchanges_after_two_warm_ups(monkeypatch):
     monkeypatch.setattr(breakdown, "time", SimpleNamespace(perf_counter=clock))
     monkeypatch.setattr(breakdown, "cProfile", SimpleNamespace(Profile=lambda: cProfile.Profile(clock)))
     result = breakdown._exchanges(method, {}, np.random.default_rng(0), 20, 32, 2)
-    assert result == {"iteration_ms": 70.0, "exchange_ms": 15.0, "exchanges_per_iteration": 3}
+    assert result == {"iteration_ms": 70.0, "exchange_ms": 15.0, "exchanges_per_iteration": 4}
     assert events == [("pool",), ("close",)]
 
 

@@ -14,9 +14,10 @@ from pathlib import Path
 
 import pytest
 
-from oneshot.exercises import EXERCISES, solutions
+from oneshot.exercises import EXERCISES, gradebook, solutions, submissions
 from oneshot.exercises import __main__ as cli_main
 from oneshot.exercises.grading import Graded
+from oneshot.exercises.sandbox import Limits
 from oneshot.tools import cli
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks" / "exercises"
@@ -130,7 +131,7 @@ def test_check_file_on_a_notebook(handed_in, capsys):
 
 
 def test_a_notebook_is_graded_as_its_python():
-    from oneshot.exercises.submissions import python_of
+    python_of = submissions.python_of
     assert python_of("!pip install x\nimport os\n%matplotlib inline\nif True:\n    !ls\n") == \
         "pass\nimport os\npass\nif True:\n    pass\n"
     assert python_of("%%bash\necho hi\n") is None and python_of("\n%%html\n<b>") is None
@@ -150,8 +151,6 @@ def test_list_names_the_notebook_of_each_exercise(capsys):
 
 
 def test_the_gradebook_is_written_through_links_and_never_to_a_device(tmp_path):
-    from oneshot.exercises import gradebook
-    from oneshot.exercises.grading import Graded
     graded = [Graded("=HYPERLINK(1).py", [9], {9: "correct"}), Graded("bo,b.py", [9], {9: "timed out after 2 s"})]
     target = tmp_path / "real.csv"
     target.write_text("old")
@@ -178,8 +177,6 @@ def test_the_gradebooks_columns_for_hand_made_grades():
     keeps its inner dots ("jean.luc.py" is jean.luc; a folder "carol.v2/" keeps its dot); a load error is
     the notes, with 0 points and the assignment's max_score; text a spreadsheet would run as a formula
     (=, +, -, @, a tab or a carriage return first) is quoted with a leading '."""
-    from oneshot.exercises import gradebook
-    from oneshot.exercises.grading import Graded
     graded = [Graded("jean.luc.py", [5, 9], {5: "correct", 9: "flagged: your wilson_interval calls x"}),
               Graded("carol.v2/", [5, 9], load_error="could not load a.py: SyntaxError: invalid syntax"),
               Graded("+1.ipynb", [5, 9], {5: "not yet: ...", 9: "correct"})]
@@ -199,8 +196,7 @@ def test_the_gradebooks_columns_for_hand_made_grades():
 
 def test_what_is_and_is_not_a_submission(tmp_path, monkeypatch):
     """Names starting with "_" or "." are the teacher's (a template, a hidden file), not submissions; a
-    folder past MAX_BYTES, or a notebook past it, is refused in words, not copied."""
-    from oneshot.exercises import submissions
+    folder past MAX_BYTES, or a notebook past it, is refused in words."""
     for name in ("alice.py", "_template.py", ".hidden.py", "bob.ipynb"):
         (tmp_path / name).write_text("x = 1\n" if name.endswith(".py") else notebook("03_baselines.ipynb"))
     assert [p.name for p in submissions.submissions(tmp_path)] == ["alice.py", "bob.ipynb"]
@@ -220,12 +216,11 @@ def test_a_notebook_runs_as_run_all_does(tmp_path):
     """Its code cells in order, numbered among all its cells from 1 (as Jupyter shows them), going on after
     a cell that raises, even SystemExit (a scratch `exit()`); an nbformat 3 notebook too (worksheets,
     "input")."""
-    from oneshot.exercises import submissions
     cells = [{"cell_type": "markdown", "source": "# title"},
              {"cell_type": "code", "source": "def f():\n    return 1\n"},
              {"cell_type": "code", "source": ["raise SystemExit(0)"]},
              {"cell_type": "code", "source": "def g():\n    return 2\n"}]
-    v3 = [{**c, "input": c.pop("source")} if c["cell_type"] == "code" else c for c in copy.deepcopy(cells)]
+    v3 = [{"cell_type": "code", "input": c["source"]} if c["cell_type"] == "code" else c for c in cells]
     for nb in ({"nbformat": 4, "cells": cells}, {"nbformat": 3, "worksheets": [{"cells": v3}]}):
         (tmp_path / "n.ipynb").write_text(json.dumps(nb))
         assert [number for number, _ in submissions.notebook_cells(tmp_path / "n.ipynb")] == [2, 3, 4]
@@ -235,10 +230,9 @@ def test_a_notebook_runs_as_run_all_does(tmp_path):
         assert [(n, type(e).__name__) for n, e in namespace["__notebook_errors__"]] == [(3, "SystemExit")]
 
 
-def test_the_limits_given_on_the_command_line_reach_the_grader(tmp_path, monkeypatch):
+def test_the_limits_given_on_the_command_line_reach_the_grader(tmp_path, monkeypatch, capsys):
     """--timeout and --memory are the sandbox's limits for grade and check; an exercise that does not exist
     is a one-line error, not a traceback from the grader."""
-    from oneshot.exercises.sandbox import Limits
     (tmp_path / "alice.py").write_text("x = 1\n")
     seen = []
     monkeypatch.setattr(cli_main, "grade", lambda folder, numbers, limits, jobs, found: seen.append(limits) or [])
@@ -247,7 +241,10 @@ def test_the_limits_given_on_the_command_line_reach_the_grader(tmp_path, monkeyp
     assert cli_main.main(["grade", str(tmp_path), "--timeout", "3", "--memory", "600"]) == 0
     assert cli_main.main(["check", "9", "--file", str(tmp_path / "alice.py"), "--timeout", "4", "--memory", "700"]) == 0
     assert seen == [Limits(timeout=3.0, memory_mb=600), Limits(timeout=4.0, memory_mb=700)]
+    capsys.readouterr()
     for bad in ("11", "0,5", ""):
         with pytest.raises(SystemExit) as stop:
             cli_main.main(["grade", str(tmp_path), "--exercises", bad])
         assert stop.value.code == 2
+        assert capsys.readouterr().err == (f"error: argument --exercises: expected comma-separated exercise numbers "
+                                           f"1-10, e.g. 5,6; got {bad!r} (see python -m oneshot.exercises grade --help)\n")

@@ -2,7 +2,6 @@
 summarise, seeds and compare commands, parts' file names, folders' checks): each against numbers
 worked out by hand from a few hand-written rows, and the figure read back from its matplotlib Axes
 (line data, error bars, labels), not from its pixels."""
-import concurrent.futures
 import json
 import os
 
@@ -12,7 +11,7 @@ from oneshot.experiments import __main__ as command, folders, parts, summary
 from oneshot.experiments import rows as sweep_rows
 from oneshot.experiments.fig2 import PROFILES
 from oneshot.experiments.rows import RunSpec
-from test_experiments import fake_run
+from test_experiments import tiny_argv  # noqa: F401 (a fixture)
 from test_seeds import _write
 
 
@@ -129,6 +128,8 @@ def test_the_figure_draws_each_lines_means_and_intervals_in_percent(tmp_path, fi
     summary.plot({"methods": {"lstm": s["methods"]["lstm"][1:]}}, tmp_path / "one.png", {"lstm": "LSTM"})
     assert figures[1].axes[0].get_xlim() == pytest.approx((8, 32))     # one size: centred, a factor 2 each side
     assert figures[1].axes[0].get_ylabel() == "one-shot success, held-out colours (%)"   # no config: no split named
+    summary.plot({"methods": {"lstm": s["methods"]["lstm"]}, "config": None}, tmp_path / "null.png", {"lstm": "LSTM"})
+    assert figures[2].axes[0].get_ylabel() == "one-shot success, held-out colours (%)"   # a null one: the same
 
 
 def _results(folder, rows, config):
@@ -192,16 +193,13 @@ def test_summarise_refuses_a_folder_without_rows_and_keeps_its_summary(tmp_path,
     assert (tmp_path / "r" / "summary.json").read_text() == before
 
 
-def test_the_sweeps_summary_and_figure_report_its_lines_differences_and_part(tmp_path, monkeypatch, figures):
+def test_the_sweeps_summary_and_figure_report_its_lines_differences_and_part(tmp_path, monkeypatch, figures,
+                                                                             tiny_argv):
     """`fig2 --profile tiny --seeds 1` (runs by `fake_run`, in threads): summary_seeds1.json's differences
     are each adapting line minus each other one, in the profile's order, at both sizes; the figure's title
     names the part."""
-    monkeypatch.setattr(command, "run_one", fake_run)
     monkeypatch.setattr(command, "ensure_data", lambda *args, **kwargs: None)      # fake runs read no data
-    monkeypatch.setattr(concurrent.futures, "ProcessPoolExecutor",
-                        lambda workers, mp_context, **_: concurrent.futures.ThreadPoolExecutor(workers))
-    assert command.main(["fig2", "--profile", "tiny", "--seeds", "1", "--out", str(tmp_path / "out"), "--work",
-                         str(tmp_path / "w"), "--data", str(tmp_path / "data"), "--no-progress"]) == 0
+    assert command.main(tiny_argv + ["--seeds", "1"]) == 0
     s = json.loads((tmp_path / "out" / "summary_seeds1.json").read_text())
     adapting, other = ["mil-conv0", "mil-all"], ["contextual", "lstm", "random"]
     pairs = [(a, b, n) for a in adapting for b in other for n in (9, 12)]

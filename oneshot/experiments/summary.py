@@ -244,7 +244,7 @@ def plot(summary, path, labels, title="One-shot imitation of new colours vs. met
     ax.minorticks_off()
     ax.set_ylim(0, 100)
     ax.set_xlabel("meta-training demonstrations (colours x demos per colour)")
-    split = summary.get("config", {}).get("score", "held-out")
+    split = (summary.get("config") or {}).get("score", "held-out")       # none recorded (absent or null)
     ax.set_ylabel(f"one-shot success, {split} colours (%)")
     fig.text(0.01, 0.005, "error bars: " + summary.get("interval", "95% intervals"), fontsize=5, color="0.35")
     ax.set_title(title, fontsize=10)
