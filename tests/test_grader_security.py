@@ -20,13 +20,14 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import oneshot
 from helpers import RIGHT_1, RIGHT_9
-from oneshot.exercises import EXERCISES
+from oneshot.exercises import CHECKERS, EXERCISES, grading, sandbox, wire, worker
 from oneshot.exercises import __main__ as cli_main
-from oneshot.exercises import worker
+from oneshot.exercises.checking import Outcome
 
 ROOT = str(Path(oneshot.__file__).resolve().parent.parent)
 ENV = {**os.environ, "PYTHONPATH": ROOT}
@@ -483,11 +484,9 @@ def test_bad_grader_flags_are_one_line_errors(tmp_path, capsys, flag):
 
 
 def test_the_grader_reads_only_values_from_the_sandbox():
-    from oneshot.exercises import wire
     value = {"w": (1, 2.5, None, True), "a": __import__("numpy").arange(6.0).reshape(2, 3)}
     back = wire.decode(json.loads(json.dumps(wire.encode(value))))
     assert back["w"] == (1, 2.5, None, True) and back["a"].tolist() == [[0, 1, 2], [3, 4, 5]]
-    import numpy as np
     objects = {"array": "|O8", "shape": [1], "data": "AAAAAAAAAAA="}
     short = {"array": "<f8", "shape": [2], "data": "AAAAAAAAAAA="}
     for hostile in [objects, short, {"pickle": "gASVAAAA"}, {"tuple": "not a list"}, {"dict": [[["k"], 1]]},
@@ -506,7 +505,6 @@ def test_the_grader_refuses_frames_that_would_crash_it():
     sandbox's ending "channel", scored 0), never an exception that ends the grading of the class: a result
     with fewer or more outcomes than the exercise has cases (judge would index past them), a frame that
     is a JSON list, an array shape of negative numbers NumPy cannot reshape to, or one nested too deeply."""
-    from oneshot.exercises import CHECKERS, grading, wire
     right = {"value": {"tuple": [0.5, 0.75]}, "changed": None}
     cases = len(CHECKERS[9].cases())
     assert len(grading._valid({"event": "result", "exercise": 9, "outcomes": [right] * cases}, 9)["outcomes"]) == cases
@@ -528,7 +526,6 @@ def test_the_sandboxs_words_are_made_safe_before_the_grader_prints_them():
     """A load error, a notebook's notes and a submission's file name, as the sandbox or the teacher's folder
     give them, reach the terminal and the gradebook without control characters (an escape sequence could
     clear the screen or recolour a fake verdict)."""
-    from oneshot.exercises import grading
     message = "could not load x.py: \x1b[2Jx.py  9  correct"
     loaded = grading._valid({"event": "load-error", "message": message}, "loaded")
     assert loaded["message"] == "could not load x.py: ?[2Jx.py  9  correct"
@@ -540,8 +537,6 @@ def test_the_sandboxs_words_are_made_safe_before_the_grader_prints_them():
 def test_a_function_not_written_on_every_case_is_not_a_stub():
     """"not written" (not counted as attempted) is the stub as handed out, raising NotImplementedError on
     every case; a function that raises it on one case only is attempted, and not yet right."""
-    from oneshot.exercises import CHECKERS, grading
-    from oneshot.exercises.checking import Outcome
     cases = len(CHECKERS[9].cases())
     stub = grading.verdict(9, [Outcome(not_written=True)] * cases)
     assert stub == "not written: wilson_interval raises NotImplementedError, as the stub does"
@@ -555,7 +550,6 @@ def test_the_sandbox_may_read_python_even_when_the_class_folder_holds_it(tmp_pat
     """The class's folder is hidden from the sandbox, and the package's source always is; but a folder
     that holds Python itself (grading from /, or from a home holding the virtualenv) is not, or no
     submission could even start."""
-    from oneshot.exercises import sandbox
     assert sandbox._hidden([tmp_path]) == [sandbox.PACKAGE, os.path.realpath(tmp_path)]
     assert sandbox._hidden([os.path.dirname(sys.prefix), "/"]) == [sandbox.PACKAGE]
 
