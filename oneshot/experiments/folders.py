@@ -61,12 +61,13 @@ def check_work_data(runs, work_dir, context, done=()):
         expected = run_config(spec, context)
         for name in ("train_data", "validation_data", "test_data"):
             was, now = getattr(stored, name), getattr(expected, name)
-            if was != now and os.path.dirname(was) != os.path.dirname(now):
+            if was == now:
+                continue
+            if os.path.dirname(was) != os.path.dirname(now):
                 raise ValueError(f"{path} was trained on {was}, not on {os.path.dirname(now)}'s: pass "
                                  f"--data {os.path.dirname(was)}, as its sweep did, or another --work")
-            if was != now:                                 # the same folder, another dataset: another sweep's
-                raise ValueError(f"{path} was trained on {was}, not {now}: it is another sweep's run; "
-                                 f"name another --work")
+            raise ValueError(f"{path} was trained on {was}, not {now}: it is another sweep's run; "   # same folder
+                             f"name another --work")
 
 
 def _summary_config(path):
