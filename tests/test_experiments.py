@@ -82,6 +82,20 @@ def test_plan_is_every_method_size_and_seed_smallest_first():
         dataclasses.replace(PROFILES["ablation"], iterations=30000)
 
 
+def test_the_2304_point_with_five_seeds_trains_and_scores_the_paper_profiles_runs():
+    """`--profile paper-2304`'s seeds 0-2 are Figure 2's own runs at 2,304 (the same run ids, training
+    configurations and scoring), so its rows extend the figure's point and a paper sweep's folders serve."""
+    five, paper = PROFILES["paper-2304"], PROFILES["paper"]
+    context = {k: v for k, v in run_context(five).items() if k != "profile"}
+    assert context == {k: v for k, v in run_context(paper).items() if k != "profile"}
+    ours = {r.run_id: r for r in plan(five)}
+    theirs = [r for r in plan(paper) if r.size == 2304 and r.method.startswith("mil-")]
+    assert sorted(r.run_id for r in theirs) == sorted(i for i, r in ours.items() if r.seed in paper.seeds)
+    assert {r.seed for r in ours.values()} == {0, 1, 2, 3, 4} and five.score == "test"
+    for run in theirs:
+        assert fig2.run_config(ours[run.run_id], run_context(five)) == fig2.run_config(run, run_context(paper))
+
+
 def test_the_ablation_lines_are_the_released_details_added_and_removed_one_at_a_time():
     all_, released, full = (lines.LINES[n] for n in ("mil-all", "mil-released", "mil-released+widths"))
     differ = lambda a, b: {f.name for f in dataclasses.fields(a) if getattr(a, f.name) != getattr(b, f.name)}
