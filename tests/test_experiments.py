@@ -846,24 +846,3 @@ def test_the_difference_interval_is_the_2_5_and_97_5_percentiles():
     b = (np.array([[1]]), np.ones((1, 1), int))
     d, lo, hi = stats.difference_interval(a, b)
     assert (d, lo, hi) == (pytest.approx(-1 / 3), -1.0, 0.0)
-
-
-def _row(method, seed, successes, trials=8):
-    return {"method": method, "size": 9, "colours": 3, "demos_per_colour": 3, "seed": seed, "iterations": 2,
-            "successes": successes, "trials": trials}
-
-
-def test_a_summarys_paired_difference_is_a_minus_b():
-    rows = [_row("good", 0, 8), _row("good", 1, 6), _row("bad", 0, 2), _row("bad", 1, 0)]
-    (diff,) = summary.summarise(rows, pairs=[("good", "bad")])["differences"]
-    assert (diff["a"], diff["b"]) == ("good", "bad")
-    assert diff["difference"] == pytest.approx((1.0 + 0.75) / 2 - (0.25 + 0.0) / 2)   # +0.75, not -0.75 (mutant S10)
-    assert diff["ci_low"] > 0
-
-
-def test_a_reproduction_with_identical_numbers_agrees():
-    """One seed each, the same counts: the difference is exactly 0 with interval [0, 0], which holds 0
-    (mutant S11, strict inequalities, said they disagree)."""
-    rows = [_row("mil", 0, 5)]
-    (point,) = summary.compare(rows, [dict(r) for r in rows])
-    assert (point["difference"], point["ci_low"], point["ci_high"]) == (0.0, 0.0, 0.0) and point["agree"] is True

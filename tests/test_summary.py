@@ -23,6 +23,22 @@ def _row(method, seed, successes, trials=8, size=(3, 3), iterations=2, per_colou
     return sweep_rows.row_of(RunSpec(method, *size, seed, iterations), result, 1.0)
 
 
+def test_a_summarys_paired_difference_is_a_minus_b():
+    rows = [_row("good", 0, 8), _row("good", 1, 6), _row("bad", 0, 2), _row("bad", 1, 0)]
+    (diff,) = summary.summarise(rows, pairs=[("good", "bad")])["differences"]
+    assert (diff["a"], diff["b"]) == ("good", "bad")
+    assert diff["difference"] == pytest.approx((1.0 + 0.75) / 2 - (0.25 + 0.0) / 2)   # +0.75, not -0.75 (mutant S10)
+    assert diff["ci_low"] > 0
+
+
+def test_a_reproduction_with_identical_numbers_agrees():
+    """One seed each, the same counts: the difference is exactly 0 with interval [0, 0], which holds 0
+    (mutant S11, strict inequalities, said they disagree)."""
+    rows = [_row("mil", 0, 5)]
+    (point,) = summary.compare(rows, [dict(r) for r in rows])
+    assert (point["difference"], point["ci_low"], point["ci_high"]) == (0.0, 0.0, 0.0) and point["agree"] is True
+
+
 def test_a_point_of_two_iteration_counts_or_a_seed_twice_is_refused():
     """A point (line, size) is one configuration's seeds: runs of 2 and of 4 iterations at the same size
     are two configurations, and a seed twice would count one policy twice in the mean over seeds."""
