@@ -12,6 +12,7 @@ run scored on the profile's split (`oneshot.experiments.fig2`):
     python -m oneshot.experiments fig2 --profile paper --compare results/fig2_paper   # check a reproduction
     python -m oneshot.experiments summarise results/fig2_paper-validation   # summary, figure from runs.csv
     python -m oneshot.experiments seeds results/default_seeds/seed*_test.json   # one recipe over its seeds
+    python -m oneshot.experiments difference results/fig2_paper-2304 mil-released+widths-flat mil-conv0  # a - b
     python -m oneshot.experiments fig2 --profile ablation --data-only     # its datasets only
     python -m oneshot.experiments ship --profile ablation --line L --seed 0 --out F.npz   # a run as a policy
 
@@ -38,6 +39,7 @@ import shlex
 import signal
 import sys
 
+from oneshot.experiments.difference import add_difference_command, run_difference_command
 from oneshot.experiments.fig2 import PROFILES, ensure_data, load_results, plan, run_context, run_one
 from oneshot.experiments.folders import check_comparable, check_results_folder, check_work_data
 from oneshot.experiments.lines import LABELS, LINES
@@ -126,10 +128,13 @@ def main(argv=None):
                    help="`python -m oneshot.evaluate CKPT --split S --json FILE` results, one per training seed")
     s.add_argument("--out", type=cli.writable_file, default=None, help="also write the summary here (JSON)")
     h = add_ship_command(commands)
+    d = add_difference_command(commands)
     commands.metavar = "{" + ",".join(commands.choices) + "}"    # named so in the error when none is given
     args = p.parse_args(argv)
     if args.experiment == "ship":
         return run_ship_command(args, h)
+    if args.experiment == "difference":
+        return run_difference_command(args, d)
     if args.experiment == "summarise":
         return _summarise(args.results, argv)
     if args.experiment == "seeds":
