@@ -30,6 +30,7 @@ from nbclient.exceptions import CellExecutionError
 import oneshot
 from oneshot import demo, methods
 from oneshot.experiments import fig2, lines
+from oneshot.experiments.difference import differences, line_rows
 from oneshot.experiments.rows import read_rows
 from oneshot.world import palette
 
@@ -206,6 +207,8 @@ EXPERIMENT_VALUES = """{
     "adaptation": adaptation, "inner_loops": [[size, a["successes"], b["successes"]] for size, a, b in inner_loops],
     "per_colour": per_colour, "search_table": search_table, "ablation_table": ablation_table, "scenes_table": scenes_table,
     "control_table": control_table, "live": live,
+    "inner_loop_differences": {f"{folder} {size}": [d["difference"], d["ci_low"], d["ci_high"]]
+                               for (folder, size), d in inner_loop_differences.items()},
     "ITERATIONS": ITERATIONS,
     "plt_is_none": plt is None}"""
 
@@ -236,6 +239,17 @@ def test_experiments(fig2_results, tmp_path):
     assert [line[0] for line in v["inner_loops"]] == both and (both or profile == "quick")
     assert all([a, b] == [points["mil-conv0", s]["successes"], points[every, s]["successes"]]
                for s, a, b in v["inner_loops"])
+    # ... and the two inner loops paired on their colours (`difference`), in both folders that hold them;
+    # at 2,304 with five seeds each, the numbers docs/results.md 8.5 quotes
+    expected = {}
+    for folder in ("fig2_paper", "fig2_paper-2304"):
+        held = {r["method"] for r in read_rows(fig2_results / folder / "runs.csv")}
+        if {every, "mil-conv0"} <= held:
+            pairs = differences(line_rows(fig2_results / folder, every), line_rows(fig2_results / folder, "mil-conv0"))
+            expected.update({f"{folder} {d['size']}": [d["difference"], d["ci_low"], d["ci_high"]] for d in pairs})
+    assert v["inner_loop_differences"] == expected and (expected or profile == "quick")
+    if "fig2_paper-2304 2304" in expected:
+        assert [round(100 * x, 1) for x in expected["fig2_paper-2304 2304"]] == [-25.5, -55.2, 4.3]
     # Section 5: the per-colour counts add up to the summary's at each method's largest size, and are
     # of held-out colours of the grid palette.
     recorded = {r["method"] for r in rows if "per_colour" in json.loads(r["notes"])}
