@@ -81,8 +81,8 @@ def test_one_line_of_two_folders_and_lines_of_two_budgets_are_named_as_such(tmp_
     ("the same number of other colours", "mil-conv0 and lstm were scored on other colours (2 and 2, not the same ones)"),
     ("no colours", "lstm's runs at 9 demonstrations hold no per-colour counts"),
     ("no colours either", "mil-conv0's runs at 9 demonstrations hold no per-colour counts"),
-    ("two budgets at a size", "lstm at 9 demonstrations mixes runs of (colours, demos, iterations) [(3, 3, 2), (3, 3, 4)]"),
-    ("a seed twice", "lstm at 9 demonstrations has seed(s) repeated: [0, 0]"),
+    ("two budgets at a size", "lstm at size 9 mixes runs of (colours, demos, iterations) [(3, 3, 2), (3, 3, 4)]; name results of one"),
+    ("a seed twice", "lstm at size 9 has seed(s) repeated: [0, 0]; name results of one configuration, each seed once"),
     ("no shared size", "mil-conv0 and lstm share no size: mil-conv0 at [9], lstm at [12] demonstrations"),
 ])
 def test_what_cannot_be_paired_is_a_one_line_error(tmp_path, capsys, case, message):

@@ -12,6 +12,7 @@ import os
 
 from oneshot.experiments import stats
 from oneshot.experiments.rows import read_rows
+from oneshot.experiments.summary import check_point
 
 
 def line_rows(folder, line):
@@ -39,20 +40,13 @@ def _point(rows, line, size, seeds):
             raise ValueError(f"{line} has no run of seed(s) {', '.join(map(str, missing))} at {size} demonstrations "
                              f"(its seeds there: {', '.join(str(r['seed']) for r in here)}); name seeds both lines have")
         here = [r for r in here if r["seed"] in seeds]
-    runs = sorted({(r["colours"], r["demos_per_colour"], r["iterations"]) for r in here})
-    if len(runs) > 1:
-        raise ValueError(f"{line} at {size} demonstrations mixes runs of (colours, demos, iterations) {runs}: "
-                         f"name results of one configuration (one sweep's folder)")
-    seen = [r["seed"] for r in here]
-    if len(set(seen)) != len(seen):
-        raise ValueError(f"{line} at {size} demonstrations has seed(s) repeated: {seen}; restore its runs.csv "
-                         f"(git checkout), or name another results folder")
+    check_point(line, size, here, "name results of one configuration, each seed once (one sweep's runs.csv)")
     colours = {tuple(sorted(json.loads(r["notes"]).get("per_colour", {}), key=int)) for r in here}
     counts = stats.counts(here)
     if len(colours) != 1 or counts[0].shape[1] != len(next(iter(colours))):
         raise ValueError(f"{line}'s runs at {size} demonstrations hold no per-colour counts of one set of colours "
                          f"(runs.csv notes' per_colour): their difference cannot be paired over colours")
-    return counts, next(iter(colours)), runs[0][2], seen
+    return counts, next(iter(colours)), here[0]["iterations"], [r["seed"] for r in here]
 
 
 def differences(a_rows, b_rows, seeds=None):

@@ -28,14 +28,19 @@ def _groups(rows):
     for row in rows:
         groups.setdefault((row["method"], row["size"]), []).append(row)
     for (method, size), group in groups.items():
-        shapes = {(r["colours"], r["demos_per_colour"], r["iterations"]) for r in group}
-        if len(shapes) > 1:
-            raise ValueError(f"{method} at size {size} mixes runs of (colours, demos, iterations) {sorted(shapes)}; "
-                             f"summarise one configuration per size")
-        seeds = [r["seed"] for r in group]
-        if len(set(seeds)) != len(seeds):
-            raise ValueError(f"{method} at size {size} has seed(s) repeated: {sorted(seeds)}")
+        check_point(method, size, group, "summarise one configuration per size")
     return groups
+
+
+def check_point(method, size, group, fix):
+    """Raise ValueError unless the rows `group` of `method` at `size` are one configuration (colours,
+    demos, iterations) with distinct seeds; `fix` says what to do instead."""
+    shapes = {(r["colours"], r["demos_per_colour"], r["iterations"]) for r in group}
+    if len(shapes) > 1:
+        raise ValueError(f"{method} at size {size} mixes runs of (colours, demos, iterations) {sorted(shapes)}; {fix}")
+    seeds = [r["seed"] for r in group]
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"{method} at size {size} has seed(s) repeated: {sorted(seeds)}; {fix}")
 
 
 def summarise(rows, config=None, command=None, pairs=()):
