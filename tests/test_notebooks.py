@@ -288,16 +288,17 @@ def test_experiments(fig2_results, tmp_path):
     # ... and the other-colour control: each policy's own-colour and farthest-hue counts, as its files hold them
     # (Figure 2's seeds 1 and 2 in fig2_paper, seeds 3 and 4 in fig2_paper-2304), in the order of their names
     controls = [fig2_results / folder / "scenes" for folder in ("fig2_paper", "fig2_paper-2304")]
-    expected = []
-    for other_file in sorted((f for folder in controls for f in folder.glob("*_demo_scenes_other_colour.json")),
-                             key=lambda f: f.name):
+    expected, other_files = [], sorted((f for folder in controls for f in folder.glob("*_demo_scenes_other_colour.json")),
+                                       key=lambda f: f.name)
+    for other_file in other_files:
         name = other_file.name[:-len("_demo_scenes_other_colour.json")]
         own = json.loads((other_file.parent / f"{name}_demo_scenes.json").read_text())
         other = json.loads(other_file.read_text())
         assert other["policy"]["recipe"].get("other_colour_demo") and not own["policy"]["recipe"].get("other_colour_demo")
         expected.append([name, own["train"]["successes"], other["train"]["successes"], own["train"]["trials"]])
     assert list(map(list, v["control_table"])) == expected
-    assert (len(expected) > 0) == any(folder.exists() for folder in controls)
+    for folder in controls:                      # each scenes folder that exists has its controls in the table
+        assert folder.exists() == any(f.parent == folder for f in other_files), folder
     # Section 7: every method of the figure ran; the trained ones' losses are finite and the fixed probe
     # meta-batch's loss fell; one trial per held-out colour (2).
     assert list(v["live"]) == list(lines.FIGURE)
