@@ -398,6 +398,30 @@ def test_ctrl_c_saves_the_last_finished_iteration_and_resume_continues_exactly(t
     assert logs[0] == logs[1] and len(logs[0]) == 6 + 2 * bool(extras)   # every line once (and 2 checks)
 
 
+def test_a_second_ctrl_c_while_the_interrupted_run_saves_does_not_lose_its_checkpoint(tmp_path, tiny_cfg,
+                                                                                     monkeypatch):
+    real, sent = checkpoint.save, []
+
+    def save(*args, **kwargs):                          # Ctrl-C again, the moment the save begins
+        os.kill(os.getpid(), signal.SIGINT)
+        sent.append(signal.SIGINT)
+        return real(*args, **kwargs)
+    _interrupt_at(monkeypatch, 4)
+    monkeypatch.setattr(checkpoint, "save", save)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)   # as a terminal's Ctrl-C, even when
+    stopped = None                                                        # pytest runs in the background
+    try:
+        run_folder.train(tiny_cfg, tmp_path / "stopped", progress=False)
+    except KeyboardInterrupt as e:          # the run's Interrupted, or the second Ctrl-C getting through
+        stopped = e
+    finally:
+        after = signal.getsignal(signal.SIGINT)
+        signal.signal(signal.SIGINT, previous)
+    assert isinstance(stopped, run_folder.Interrupted) and "interrupted at iteration 3" in str(stopped)
+    assert len(sent) == 1 and after is signal.default_int_handler    # Ctrl-C stops the next command again
+    assert checkpoint.load(tmp_path / "stopped" / "checkpoint.npz")["iteration"] == 3
+
+
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
 def test_a_signalled_training_saves_says_where_in_one_line_and_exits_130(tmp_path, tiny_datasets, sig):
     run = tmp_path / "run"

@@ -14,6 +14,8 @@ import glob
 import json
 import os
 import shutil
+import signal
+import threading
 import time
 
 from tqdm import tqdm
@@ -163,7 +165,8 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
     except KeyboardInterrupt:
         bar.close()
         if finished.iteration != saved:           # save where it stopped; resume goes on from there
-            save(finished)
+            with _signals_held():                 # a second Ctrl-C must not lose it
+                save(finished)
         raise Interrupted(f"interrupted at iteration {finished.iteration}; checkpoint: {ckpt_path} "
                           f"(continue with --resume)") from None
     finally:
@@ -171,6 +174,21 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
             pool.close()
         bar.close()
     return finished.params
+
+
+@contextlib.contextmanager
+def _signals_held():
+    """SIGINT and SIGTERM dropped while the block runs, in the main thread (the one Python delivers
+    signals to): for the checkpoint an interrupted run saves, since the run is stopping already."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():           # None: a handler set outside Python
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
 
 
 def _resumable(cfg, ckpt_path):
