@@ -83,12 +83,19 @@ def read_rows(path, fix=None):
     if not os.path.exists(path):
         return []
     with open_read(path, "r", newline="") as f:
-        reader = csv.DictReader(f)
         try:
-            if tuple(reader.fieldnames or ()) != COLUMNS:
+            text = f.read()
+            reader = csv.DictReader(io.StringIO(text, newline=""))
+            if reader.fieldnames is None:
+                raise ValueError(f"{path} is empty (not even runs.csv's header); "
+                                 f"{fix or 'delete it to start the sweep afresh'}")
+            if tuple(reader.fieldnames) != COLUMNS:
                 raise ValueError(f"{path}: columns {reader.fieldnames} are not runs.csv's {list(COLUMNS)}; "
                                  f"{fix or 'move the file away to start the sweep afresh'}")
-            rows = [(reader.line_num, row) for row in reader]
+            rows, end, lines = [], reader.line_num, text.splitlines()
+            for row in reader:                 # a row's lines (more than one if a quote runs on), blank ones skipped
+                rows.append(([n for n in range(end + 1, reader.line_num + 1) if lines[n - 1].strip()], row))
+                end = reader.line_num
         except UnicodeDecodeError:
             raise ValueError(f"{path} is not a runs.csv (it is not text); "
                              f"{fix or 'move the file away to start the sweep afresh'}") from None
@@ -105,8 +112,11 @@ def read_rows(path, fix=None):
                 raise ValueError("its notes are not a JSON object")
             row_id(row)
         except (ValueError, TypeError) as e:
-            raise ValueError(f"{path}, line {line}: not a runs.csv row ({e}); "
-                             f"{fix or 'delete that line (its run is then done again) or move the file away'}") from None
+            where, it = ((f"line {line[0]}", "that line (its run is then done again)") if len(line) == 1 else
+                         (f"lines {line[0]}-{line[-1]} (one row: a quote opened there runs on)",
+                          "those lines (their runs are then done again)"))
+            raise ValueError(f"{path}, {where}: not a runs.csv row ({e}); "
+                             f"{fix or f'delete {it} or move the file away'}") from None
     return [row for _, row in rows]
 
 
