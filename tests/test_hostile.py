@@ -595,20 +595,25 @@ def test_resume_refuses_a_training_set_replaced_by_another_image_size(tmp_path, 
         run_folder.train(cfg, run, resume=True, progress=False)
 
 
-@pytest.mark.parametrize("change, says", [
-    ({"expert_cfg": ExpertConfig(action_noise=0.0)}, "noise 0.0, not 0.1"),          # notebook 1's old command
-    ({"seed": 5}, "seed 5, not 0"),
-    ({"split": "validation"}, "split 'validation', not 'train'"),
-    ({"demos_per_task": 2}, "2 demos per colour, not 3"),                             # 2-demo data at the path
+@pytest.mark.parametrize("change, says, fix", [
+    ({"expert_cfg": ExpertConfig(action_noise=0.0)}, "noise 0.0, not 0.1", "collect"),   # notebook 1's old command
+    ({"seed": 5}, "seed 5, not 0", "collect"),
+    ({"demos_per_task": 2}, "2 demos per colour, not 3", "collect"),                   # 2-demo data at the path
+    # another split's file: collecting this split's data into it is no fix (it was the advice)
+    ({"split": "validation"}, "split 'validation', not 'train'", "name"),
 ])
-def test_training_refuses_data_collected_with_other_settings_than_its_profile(tmp_path, tiny_cfg, change, says):
+def test_training_refuses_data_collected_with_other_settings_than_its_profile(tmp_path, tiny_cfg, change, says, fix):
     settings = dict(n_tasks=3, demos_per_task=3, split="train", seed=0, workers=1,
                     expert_cfg=ExpertConfig(action_noise=0.1), progress=False)
     other = tmp_path / "train.npz"
     datasets.save(collection.collect(**{**settings, **change}), other)
-    with pytest.raises(run_data.DataMismatch, match=f"{other} was collected with other settings than this run's "
-                                                    f"train data: {says}.*python -m oneshot.collect --out {other}"):
+    with pytest.raises(run_data.DataMismatch) as refused:
         run_folder.train(dataclasses.replace(tiny_cfg, train_data=str(other)), tmp_path / "run", progress=False)
+    message = str(refused.value)
+    assert message.startswith(f"{other} was collected with other settings than this run's train data: {says}; ")
+    fixes = {"collect": f"; move it away (this command then collects the right one: python -m oneshot.collect "
+                        f"--out {other} --split train ", "name": "; name a train dataset instead"}
+    assert fixes[fix] in message and not any(f in message for name, f in fixes.items() if name != fix), message
     assert not (tmp_path / "run").exists()                          # refused before anything was written
 
 
