@@ -398,6 +398,17 @@ def test_cli_summarise_redoes_a_finished_sweeps_summary_and_refuses_an_unfinishe
     after = json.loads((out / "summary.json").read_text())
     assert after["summarised_by"] == f"python -m oneshot.experiments summarise {out}"
     assert (after["command"], after["config"], after["methods"]) == (before["command"], before["config"], before["methods"])
+    rows = sweep_rows.read_rows(out / "runs.csv")           # a run's row gone: the sweep is not finished
+    gone = next(r for r in rows if (r["method"], r["seed"]) == ("mil-conv0", 0) and r["size"] == min(r["size"] for r in rows))
+    sweep_rows.write_rows([r for r in rows if r is not gone], out / "runs.csv")
+    written = (out / "summary.json").read_text()
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        cli.run(command.main, ["summarise", str(out)])
+    assert stop.value.code == 2 and (out / "summary.json").read_text() == written
+    assert capsys.readouterr().err == (f"error: {out / 'runs.csv'} lacks 1 of its sweep's {len(rows)} runs (mil-conv0 "
+                                       f"at {gone['size']} demos, seed 0): summarise redoes a finished sweep's summary; "
+                                       f"finish the sweep first ({before['command']})\n")
     (out / "summary.json").unlink()                         # a sweep still running has only its runs.csv
     capsys.readouterr()
     with pytest.raises(SystemExit) as stop:

@@ -242,6 +242,15 @@ def _summarise(folder, argv):
         print(f"error: {folder} holds no runs.csv rows to summarise", file=sys.stderr)
         return 2
     config = dict(before.get("config") or {})          # none recorded (absent or null): {}
+    have = {(r["method"], r["size"], r["seed"]) for r in rows}
+    wanted = [(m, c * d, s) for m in config.get("methods", ()) for c, d in config.get("sizes", ())
+              for s in config.get("seeds", ())]         # the recorded sweep's runs (none recorded: not checked)
+    missing = [run for run in wanted if run not in have]
+    if missing:                                # as fig2 does: a summary is of the whole sweep
+        raise ValueError(f"{os.path.join(folder, 'runs.csv')} lacks {len(missing)} of its sweep's {len(wanted)} "
+                         f"runs ({missing[0][0]} at {missing[0][1]} demos, seed {missing[0][2]}"
+                         f"{', ...' * (len(missing) > 1)}): summarise redoes a finished sweep's summary; finish "
+                         f"the sweep first ({before.get('command') or 'run its fig2 command again'})")
     lines = [m for m in config.get("methods", LINES) if m in LINES]
     summary = summarise(rows, None, before.get("command"), _pairs(lines))
     config.setdefault("score", "validation")   # a sweep from before the test split scored what is now validation
