@@ -420,6 +420,11 @@ def test_cli_summarise_redoes_a_finished_sweeps_summary_and_refuses_an_unfinishe
 
 @pytest.mark.parametrize("text, says", [("[]", "is not a Figure 2 summary"), ('{"config": "x"}', "is not a Figure 2 summary"),
                                          ('{"config": {"methods": 5}}', "is not a Figure 2 summary"),
+                                         ('{"config": {"sizes": null}}', "is not a Figure 2 summary"),
+                                         ('{"config": {"sizes": [9]}}', "is not a Figure 2 summary"),
+                                         ('{"config": {"sizes": [[3, "3"]]}}', "is not a Figure 2 summary"),
+                                         ('{"config": {"seeds": 0}}', "is not a Figure 2 summary"),
+                                         ('{"config": {"seeds": [true]}}', "is not a Figure 2 summary"),
                                          ('{"config": {', "is not JSON")])
 def test_summarise_refuses_a_damaged_summary_in_one_line(tmp_path, capsys, text, says):
     (tmp_path / "summary.json").write_text(text)

@@ -402,23 +402,29 @@ def test_a_second_ctrl_c_while_the_interrupted_run_saves_does_not_lose_its_check
                                                                                      monkeypatch):
     real, sent = checkpoint.save, []
 
-    def save(*args, **kwargs):                          # Ctrl-C again, the moment the save begins
-        os.kill(os.getpid(), signal.SIGINT)
-        sent.append(signal.SIGINT)
+    def save(*args, **kwargs):                          # Ctrl-C and a kill, the moment the save begins
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            os.kill(os.getpid(), sig)
+            sent.append(sig)
         return real(*args, **kwargs)
+
+    def term(signum, frame):                            # as the train command has it: a kill is Ctrl-C
+        raise KeyboardInterrupt
     _interrupt_at(monkeypatch, 4)
     monkeypatch.setattr(checkpoint, "save", save)
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)   # as a terminal's Ctrl-C, even when
-    stopped = None                                                        # pytest runs in the background
+    previous = (signal.signal(signal.SIGINT, signal.default_int_handler),   # as a terminal's Ctrl-C, even
+                signal.signal(signal.SIGTERM, term))                         # when pytest runs in the background
+    stopped = None
     try:
         run_folder.train(tiny_cfg, tmp_path / "stopped", progress=False)
-    except KeyboardInterrupt as e:          # the run's Interrupted, or the second Ctrl-C getting through
+    except KeyboardInterrupt as e:          # the run's Interrupted, or a second signal getting through
         stopped = e
     finally:
-        after = signal.getsignal(signal.SIGINT)
-        signal.signal(signal.SIGINT, previous)
+        after = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+        signal.signal(signal.SIGINT, previous[0])
+        signal.signal(signal.SIGTERM, previous[1])
     assert isinstance(stopped, run_folder.Interrupted) and "interrupted at iteration 3" in str(stopped)
-    assert len(sent) == 1 and after is signal.default_int_handler    # Ctrl-C stops the next command again
+    assert len(sent) == 2 and after == (signal.default_int_handler, term)   # both stop the next command again
     assert checkpoint.load(tmp_path / "stopped" / "checkpoint.npz")["iteration"] == 3
 
 
@@ -611,8 +617,8 @@ def test_training_refuses_data_collected_with_other_settings_than_its_profile(tm
         run_folder.train(dataclasses.replace(tiny_cfg, train_data=str(other)), tmp_path / "run", progress=False)
     message = str(refused.value)
     assert message.startswith(f"{other} was collected with other settings than this run's train data: {says}; ")
-    fixes = {"collect": f"; move it away (this command then collects the right one: python -m oneshot.collect "
-                        f"--out {other} --split train ", "name": "; name a train dataset instead"}
+    collect = f"(this command then collects the right one: python -m oneshot.collect --out {other} --split train "
+    fixes = {"collect": f"; move it away {collect}", "name": f"; name a train dataset instead, or move it away {collect}"}
     assert fixes[fix] in message and not any(f in message for name, f in fixes.items() if name != fix), message
     assert not (tmp_path / "run").exists()                          # refused before anything was written
 

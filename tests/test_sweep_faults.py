@@ -93,9 +93,16 @@ GOOD = "mil-conv0,9,3,3,0,2,1.0,1,4,0.25,0.05,0.7,{}"
     (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace(",1,4,", ",0,0,") + "\n", "line 2: .*0 successes in 0 trials"),
     (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace("{}", "[]") + "\n", "line 2: .*its notes are not a JSON object"),
     ("", r"runs.csv is empty \(not even runs.csv's header\); delete it to start the sweep afresh"),
-    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD + '\ngarbage,,,"unterminated\n' + GOOD + "\n",   # the row begins on line 3
-     r"lines 3-4 \(one row: a quote opened there runs on\): not a runs.csv row .*delete those lines"),
-    (",".join(sweep_rows.COLUMNS) + "\n\n" + GOOD[:30] + "\n", r"runs.csv, line 3: not a runs.csv row"),  # a blank line
+    ("\r\n", r"runs.csv is empty \(not even runs.csv's header\)"),
+    # a quote that runs on: the row begins where it opens; deleting that line keeps the good rows it swallowed
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD + '\ngarbage,,,"unterminated\n' + GOOD + "\n" + GOOD + "\n",
+     r"lines 3-5 \(one row: a quote opened on line 3 runs on\): not a runs.csv row .*; delete line 3 \(its run"),
+    ("\r\n".join([",".join(sweep_rows.COLUMNS), GOOD, 'garbage,,,"unterminated', GOOD, ""]),      # Windows line ends
+     r"lines 3-4 \(one row: a quote opened on line 3 runs on\)"),
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD + '\ngarbage,,,"' + "x" * 200000 + "\n",            # past csv's field limit
+     r"runs.csv, from line 3: not a runs.csv row \(field larger than field limit .*delete line 3"),
+    (",".join(sweep_rows.COLUMNS) + "\n\n" + GOOD[:30] + "\n", r"runs.csv, line 3: not a runs.csv row"),  # an empty line
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD + "\n   \n", r"runs.csv, line 3: not a runs.csv row \(it has 1 fields"),
 ])
 def test_a_damaged_runs_csv_is_named_with_its_line(tmp_path, text, says):
     path = tmp_path / "runs.csv"

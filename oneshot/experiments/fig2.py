@@ -42,8 +42,13 @@ def load_results(folder):
         except ValueError as e:
             raise ValueError(f"{path} is not JSON ({e}); {fix}") from None
     config = (summary.get("config") or {}) if isinstance(summary, dict) else None     # none recorded: {}
-    if not isinstance(config, dict) or not isinstance(config.get("methods", []), list):
-        raise ValueError(f"{path} is not a Figure 2 summary (a JSON object whose config names its lines); {fix}")
+    whole = lambda x: isinstance(x, int) and not isinstance(x, bool)
+    if (not isinstance(config, dict) or not isinstance(config.get("methods", []), list)
+            or not isinstance(config.get("seeds", []), list) or not all(map(whole, config.get("seeds", [])))
+            or not isinstance(config.get("sizes", []), list)
+            or not all(isinstance(s, list) and len(s) == 2 and all(map(whole, s)) for s in config.get("sizes", []))):
+        raise ValueError(f"{path} is not a Figure 2 summary (a JSON object whose config names its lines, and its "
+                         f"sizes and seeds as lists of [colours, demos] and of whole numbers); {fix}")
     return read_rows(os.path.join(folder, "runs.csv")), summary
 
 

@@ -82,23 +82,28 @@ def read_rows(path, fix=None):
     a sweep's own file, how to start it afresh or run that line's run again."""
     if not os.path.exists(path):
         return []
+    end = 0                                    # the last line read of the last whole row
     with open_read(path, "r", newline="") as f:
         try:
             text = f.read()
             reader = csv.DictReader(io.StringIO(text, newline=""))
-            if reader.fieldnames is None:
+            if not reader.fieldnames:
                 raise ValueError(f"{path} is empty (not even runs.csv's header); "
                                  f"{fix or 'delete it to start the sweep afresh'}")
             if tuple(reader.fieldnames) != COLUMNS:
                 raise ValueError(f"{path}: columns {reader.fieldnames} are not runs.csv's {list(COLUMNS)}; "
                                  f"{fix or 'move the file away to start the sweep afresh'}")
-            rows, end, lines = [], reader.line_num, text.splitlines()
-            for row in reader:                 # a row's lines (more than one if a quote runs on), blank ones skipped
-                rows.append(([n for n in range(end + 1, reader.line_num + 1) if lines[n - 1].strip()], row))
+            rows, end, lines = [], reader.line_num, io.StringIO(text, newline="").readlines()   # split as csv does
+            for row in reader:                 # a row's lines (more than one if a quote runs on), empty ones skipped
+                rows.append(([n for n in range(end + 1, reader.line_num + 1) if lines[n - 1].rstrip("\r\n")], row))
                 end = reader.line_num
         except UnicodeDecodeError:
             raise ValueError(f"{path} is not a runs.csv (it is not text); "
                              f"{fix or 'move the file away to start the sweep afresh'}") from None
+        except csv.Error as e:                 # e.g. a quote that runs on past the field size limit
+            advice = fix or f"delete line {end + 1} (its run is then done again) or move the file away"
+            raise ValueError(f"{path}, from line {end + 1}: not a runs.csv row ({e}; a quote opened there may "
+                             f"run on); {advice}") from None
     for line, row in rows:
         try:
             if None in row or None in row.values():     # DictReader: extra fields under None, missing ones None
@@ -112,11 +117,10 @@ def read_rows(path, fix=None):
                 raise ValueError("its notes are not a JSON object")
             row_id(row)
         except (ValueError, TypeError) as e:
-            where, it = ((f"line {line[0]}", "that line (its run is then done again)") if len(line) == 1 else
-                         (f"lines {line[0]}-{line[-1]} (one row: a quote opened there runs on)",
-                          "those lines (their runs are then done again)"))
-            raise ValueError(f"{path}, {where}: not a runs.csv row ({e}); "
-                             f"{fix or f'delete {it} or move the file away'}") from None
+            where = (f"line {line[0]}" if len(line) == 1 else
+                     f"lines {line[0]}-{line[-1]} (one row: a quote opened on line {line[0]} runs on)")
+            advice = fix or f"delete line {line[0]} (its run is then done again) or move the file away"
+            raise ValueError(f"{path}, {where}: not a runs.csv row ({e}); {advice}") from None
     return [row for _, row in rows]
 
 

@@ -105,11 +105,12 @@ def check(cfg, split, metadata, path):
     if named and (metadata.get("n_tasks"), metadata.get("demos_per_task")) != named:
         differ.append(f"{metadata.get('n_tasks')} colours x {metadata.get('demos_per_task')} demos, not the "
                       f"{named[0]} x {named[1]} its name says")
-    if held["split"] != split:                  # another split's file: collecting this one there is no fix
-        fix = f"name a {split} dataset instead"
-    else:
-        fix = f"move it away (this command then collects the right one: {collect_command(cfg, split)}), or name another file"
     if differ:
+        collect = f"this command then collects the right one: {collect_command(cfg, split)}"
+        if held["split"] not in (split, None):  # another split's file: most likely the wrong file was named
+            fix = f"name a {split} dataset instead, or move it away ({collect})"
+        else:
+            fix = f"move it away ({collect}), or name another file"
         raise DataMismatch(f"{path} was collected with other settings than this run's {split} data: "
                            f"{'; '.join(differ)}; {fix}")
 

@@ -165,7 +165,7 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
     except KeyboardInterrupt:
         bar.close()
         if finished.iteration != saved:           # save where it stopped; resume goes on from there
-            with _signals_held():                 # a second Ctrl-C must not lose it
+            with _signals_ignored():              # a second Ctrl-C must not lose it
                 save(finished)
         raise Interrupted(f"interrupted at iteration {finished.iteration}; checkpoint: {ckpt_path} "
                           f"(continue with --resume)") from None
@@ -177,18 +177,20 @@ def _train(method, cfg, run_dir, resume, progress, stop_after):
 
 
 @contextlib.contextmanager
-def _signals_held():
-    """SIGINT and SIGTERM dropped while the block runs, in the main thread (the one Python delivers
-    signals to): for the checkpoint an interrupted run saves, since the run is stopping already."""
+def _signals_ignored():
+    """SIGINT and SIGTERM ignored while the block runs, in the main thread (the one Python delivers
+    signals to): for the checkpoint an interrupted run saves, since the run is stopping already. A
+    handler set outside Python (getsignal None) is left alone: it could not be put back."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in (signal.SIGINT, signal.SIGTERM)}
+    ours = [sig for sig in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(sig) is not None]
+    previous = {sig: signal.signal(sig, signal.SIG_IGN) for sig in ours}
     try:
         yield
     finally:
-        for sig, handler in previous.items():           # None: a handler set outside Python
-            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _resumable(cfg, ckpt_path):
