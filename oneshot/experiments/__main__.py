@@ -41,7 +41,7 @@ import sys
 
 from oneshot.experiments.difference import add_difference_command, run_difference_command
 from oneshot.experiments.fig2 import PROFILES, ensure_data, load_results, plan, run_context, run_one
-from oneshot.experiments.folders import check_comparable, check_results_folder, check_work_data
+from oneshot.experiments.folders import check_comparable, check_finished, check_results_folder, check_work_data
 from oneshot.experiments.lines import LABELS, LINES
 from oneshot.experiments.parts import narrow
 from oneshot import methods
@@ -242,15 +242,7 @@ def _summarise(folder, argv):
         print(f"error: {folder} holds no runs.csv rows to summarise", file=sys.stderr)
         return 2
     config = dict(before.get("config") or {})          # none recorded (absent or null): {}
-    have = {(r["method"], r["size"], r["seed"]) for r in rows}
-    wanted = [(m, c * d, s) for m in config.get("methods", ()) for c, d in config.get("sizes", ())
-              for s in config.get("seeds", ())]         # the recorded sweep's runs (none recorded: not checked)
-    missing = [run for run in wanted if run not in have]
-    if missing:                                # as fig2 does: a summary is of the whole sweep
-        raise ValueError(f"{os.path.join(folder, 'runs.csv')} lacks {len(missing)} of its sweep's {len(wanted)} "
-                         f"runs ({missing[0][0]} at {missing[0][1]} demos, seed {missing[0][2]}"
-                         f"{', ...' * (len(missing) > 1)}): summarise redoes a finished sweep's summary; finish "
-                         f"the sweep first ({before.get('command') or 'run its fig2 command again'})")
+    check_finished(folder, rows, before)       # as fig2 does: a summary is of the whole sweep
     lines = [m for m in config.get("methods", LINES) if m in LINES]
     summary = summarise(rows, None, before.get("command"), _pairs(lines))
     config.setdefault("score", "validation")   # a sweep from before the test split scored what is now validation

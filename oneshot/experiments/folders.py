@@ -1,7 +1,8 @@
 """The folders of Figure 2's sweeps as a command meets them before any run: may this sweep write to a
 results folder (`results/fig2_<profile>/`; `check_results_folder`: one profile's results to a folder),
-may its points be compared with the results there (`check_comparable`, `fig2 --compare`), and do the
-runs of its work folder continue with these datasets (`check_work_data`)?
+may its points be compared with the results there (`check_comparable`, `fig2 --compare`), do the
+runs of its work folder continue with these datasets (`check_work_data`), and does a results folder
+hold its whole sweep (`check_finished`, before `summarise`)?
 """
 import os
 
@@ -68,6 +69,21 @@ def check_work_data(runs, work_dir, context, done=()):
                                  f"--data {os.path.dirname(was)}, as its sweep did, or another --work")
             raise ValueError(f"{path} was trained on {was}, not {now}: it is another sweep's run; "   # same folder
                              f"name another --work")
+
+
+def check_finished(folder, rows, summary):
+    """Raise ValueError unless `rows` (folder's runs.csv) hold every run of the sweep its summary records:
+    config's methods x sizes x seeds, checked by `load_results` (none recorded: nothing to check)."""
+    config = summary.get("config") or {}
+    have = {(r["method"], r["size"], r["seed"]) for r in rows}
+    wanted = [(m, c * d, s) for m in config.get("methods", ()) for c, d in config.get("sizes", ())
+              for s in config.get("seeds", ())]
+    missing = [run for run in wanted if run not in have]
+    if missing:
+        raise ValueError(f"{os.path.join(folder, 'runs.csv')} lacks {len(missing)} of its sweep's {len(wanted)} "
+                         f"runs ({missing[0][0]} at {missing[0][1]} demos, seed {missing[0][2]}"
+                         f"{', ...' * (len(missing) > 1)}): summarise redoes a finished sweep's summary; finish "
+                         f"the sweep first ({summary.get('command') or 'run its fig2 command again'})")
 
 
 def _summary_config(path):
