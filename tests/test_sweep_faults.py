@@ -92,6 +92,12 @@ GOOD = "mil-conv0,9,3,3,0,2,1.0,1,4,0.25,0.05,0.7,{}"
     (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace(",1,4,", ",-1,4,") + "\n", "line 2: .*-1 successes in 4 trials"),
     (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace(",1,4,", ",0,0,") + "\n", "line 2: .*0 successes in 0 trials"),
     (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace("{}", "[]") + "\n", "line 2: .*its notes are not a JSON object"),
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace("mil-conv0,9,3,3,0,", "mil-conv0,9,3,3,-10,") + "\n",
+     r"line 2: not a runs.csv row \(3 colours x 3 demos, seed -10, 2 iterations\)"),
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace("mil-conv0,9,3,3,", "mil-conv0,0,0,3,") + "\n",
+     r"line 2: not a runs.csv row \(0 colours x 3 demos"),
+    (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace("mil-conv0,9,3,3,", "mil-conv0,12,3,3,") + "\n",
+     r"line 2: not a runs.csv row \(size 12 is not 3 colours x 3 demos\)"),
     ("", r"runs.csv is empty \(not even runs.csv's header\); delete it to start the sweep afresh"),
     ("\r\n", r"runs.csv is empty \(not even runs.csv's header\)"),
     # a quote that runs on: the row begins where it opens; deleting that line keeps the good rows it swallowed

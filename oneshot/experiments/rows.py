@@ -113,6 +113,11 @@ def read_rows(path, fix=None):
             row.update({k: float(row[k]) for k in _FLOAT_COLUMNS})
             if not 0 <= row["successes"] <= row["trials"] or row["trials"] < 1:
                 raise ValueError(f"{row['successes']} successes in {row['trials']} trials")
+            if min(row["colours"], row["demos_per_colour"]) < 1 or min(row["seed"], row["iterations"]) < 0:
+                raise ValueError(f"{row['colours']} colours x {row['demos_per_colour']} demos, seed {row['seed']}, "
+                                 f"{row['iterations']} iterations")
+            if row["size"] != row["colours"] * row["demos_per_colour"]:
+                raise ValueError(f"size {row['size']} is not {row['colours']} colours x {row['demos_per_colour']} demos")
             if not isinstance(json.loads(row["notes"]), dict):
                 raise ValueError("its notes are not a JSON object")
             row_id(row)
