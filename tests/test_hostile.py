@@ -3,6 +3,7 @@ exit status 2 (bad input) or 1 (a failure), ONE line on stderr naming the flag o
 no traceback, and nothing written. Commands run in-process through `cli.run`, as `python -m` runs them;
 `test_python_m_exits_with_the_status_and_one_line` checks each module's `__main__` is wired to it."""
 import argparse
+import concurrent.futures
 import dataclasses
 import json
 import os
@@ -425,6 +426,16 @@ def test_a_second_ctrl_c_while_the_interrupted_run_saves_does_not_lose_its_check
         signal.signal(signal.SIGTERM, previous[1])
     assert isinstance(stopped, run_folder.Interrupted) and "interrupted at iteration 3" in str(stopped)
     assert len(sent) == 2 and after == (signal.default_int_handler, term)   # both stop the next command again
+    assert checkpoint.load(tmp_path / "stopped" / "checkpoint.npz")["iteration"] == 3
+
+
+def test_an_interrupted_run_in_a_thread_saves_its_checkpoint_too(tmp_path, tiny_cfg, monkeypatch):
+    """A sweep's thread pool trains in threads, where no signal handler can be set: the save is not guarded
+    there (signals reach only the main thread), and not a ValueError either."""
+    _interrupt_at(monkeypatch, 4)
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        stopped = pool.submit(run_folder.train, tiny_cfg, tmp_path / "stopped", progress=False).exception()
+    assert isinstance(stopped, run_folder.Interrupted), stopped
     assert checkpoint.load(tmp_path / "stopped" / "checkpoint.npz")["iteration"] == 3
 
 
