@@ -93,9 +93,9 @@ def read_rows(path, fix=None):
             if tuple(reader.fieldnames) != COLUMNS:
                 raise ValueError(f"{path}: columns {reader.fieldnames} are not runs.csv's {list(COLUMNS)}; "
                                  f"{fix or 'move the file away to start the sweep afresh'}")
-            rows, end, lines = [], reader.line_num, io.StringIO(text, newline="").readlines()   # split as csv does
-            for row in reader:                 # a row's lines (more than one if a quote runs on), empty ones skipped
-                rows.append(([n for n in range(end + 1, reader.line_num + 1) if lines[n - 1].rstrip("\r\n")], row))
+            rows, end = [], reader.line_num
+            for row in reader:                 # a row's lines: more than one if a quote runs on
+                rows.append(((end + 1, reader.line_num), row))
                 end = reader.line_num
         except UnicodeDecodeError:
             raise ValueError(f"{path} is not a runs.csv (it is not text); "
@@ -121,7 +121,9 @@ def read_rows(path, fix=None):
             if not isinstance(json.loads(row["notes"]), dict):
                 raise ValueError("its notes are not a JSON object")
             row_id(row)
-        except (ValueError, TypeError) as e:
+        except (ValueError, TypeError) as e:                 # the row's lines, but empty ones (csv skips them)
+            lines = io.StringIO(text, newline="").readlines()   # split as csv splits them
+            line = [n for n in range(line[0], line[1] + 1) if lines[n - 1].rstrip("\r\n")]
             where = (f"line {line[0]}" if len(line) == 1 else
                      f"lines {line[0]}-{line[-1]} (one row: a quote opened on line {line[0]} runs on)")
             advice = fix or f"delete line {line[0]} (its run is then done again) or move the file away"
