@@ -134,17 +134,31 @@ def test_a_layer_norm_run_saved_before_its_offsets_started_at_zero_scores_but_do
         run_folder._resumable(cfg, str(tmp_path / "run" / "checkpoint.npz"))
 
 
-def test_an_old_style_checkpoint_loads_and_is_checked_by_its_network_image_size(tmp_path):
+def test_an_old_style_checkpoint_loads_and_is_checked_by_its_network_image_size_and_palette_mode(tmp_path):
+    """A checkpoint that records no world is checked by what it does record: the network's image size
+    and its config's palette mode ("hues" when the config predates the field: the only palette then)."""
     path = tmp_path / "old.npz"
     saved = save_tiny(path, seconds=3.0)
     rewrite(path, old_style)
     ckpt = checkpoint.load(path)
     assert_equal(ckpt, dict(saved, world=None, state_layout=None, seconds=None))
-    fit_check.check_data(ckpt, metadata(horizon=50, palette=PaletteConfig(mode="grid")), "old.npz", "d.npz")
+    assert ckpt["config"].palette == "hues"
+    fit_check.check_data(ckpt, metadata(horizon=50, palette=PaletteConfig(size=12)), "old.npz", "d.npz")
     with pytest.raises(checkpoint.CheckpointError) as e:
         fit_check.check_data(ckpt, metadata(image_size=32), "old.npz", "d32.npz")
     assert str(e.value) == ("old.npz was trained on 8x8 images but d32.npz holds 32x32 images; "
                             "use data collected with --image-size 8")
+    grid = metadata(palette=PaletteConfig(mode="grid"))
+    with pytest.raises(checkpoint.CheckpointError) as e:
+        fit_check.check_data(ckpt, grid, "old.npz", "grid.npz")
+    assert str(e.value) == ("old.npz was trained on the 'hues' palette but grid.npz holds the 'grid' palette; "
+                            "use data collected with --palette hues (or, to test the policy on other colours, "
+                            "python -m oneshot.evaluate --any-palette)")
+    fit_check.check_data(ckpt, grid, "old.npz", "grid.npz", palette=False)
+    assert fit_check.world_config(ckpt).palette == PaletteConfig(mode="hues")
+    rewrite(path, lambda meta: meta["config"].update(palette="grid"))      # recorded: its own mode
+    fit_check.check_data(checkpoint.load(path), grid, "old.npz", "grid.npz")
+    assert fit_check.world_config(checkpoint.load(path)).palette == PaletteConfig(mode="grid")
 
 
 SHIPPED_HELDOUT = pathlib.Path(__file__).parent.parent / "data" / "heldout.npz"
@@ -159,6 +173,8 @@ def test_the_shipped_policy_loads_and_fits_the_held_out_data_but_not_64x64_image
     with pytest.raises(checkpoint.CheckpointError, match=r"32x32 images but h64\.npz holds 64x64 images; "
                                                          r"use data collected with --image-size 32"):
         fit_check.check_data(ckpt, metadata(image_size=64), PRETRAINED, "h64.npz")
+    with pytest.raises(checkpoint.CheckpointError, match=r"the 'hues' palette but grid\.npz holds the 'grid'"):
+        fit_check.check_data(ckpt, metadata(image_size=32, palette=PaletteConfig(mode="grid")), PRETRAINED, "grid.npz")
 
 
 # --- check_data -------------------------------------------------------------------------------------

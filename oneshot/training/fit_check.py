@@ -21,9 +21,11 @@ def _plain(x):
 
 def world_config(ckpt):
     """The WorldConfig a checkpoint's policy was trained in (its image size, horizon, arm, palette), or
-    for older checkpoints, which record only the network's image size, the default world of that size."""
+    for older checkpoints, which record only the network's image size and their config's palette mode,
+    the default world of that size and palette."""
     if ckpt["world"] is None:
-        return WorldConfig(image_size=ckpt["network"].image_size)
+        return WorldConfig(image_size=ckpt["network"].image_size,
+                           palette=PaletteConfig(mode=ckpt["config"].palette))
     return datasets.world_config({"world": ckpt["world"]})
 
 
@@ -32,12 +34,13 @@ def check_data(ckpt, metadata, ckpt_path, data_path, palette=True):
     the checkpoint's policy can run on: images of the size it was trained on, demos of its horizon, its
     state layout, the same torque bound (the policy's actions are torques divided by it) and, with
     palette=True, the same palette (a task is a palette index: in another palette it is another
-    colour). Older checkpoints record no world: then only the image size (the network's) is checked.
+    colour). Older checkpoints record no world: then only the image size (the network's) and the
+    palette's mode (their config's; "hues", the only one, before configs recorded it) are checked.
     A state layout is compared when both record one (datasets and checkpoints recording none have
     `datasets.STATE_LAYOUT`)."""
     trained = ckpt["world"]
     mine = world_fields(trained, f"{ckpt_path}: meta 'world'") if trained is not None else \
-        {"image_size": ckpt["network"].image_size}
+        {"image_size": ckpt["network"].image_size, "palette": PaletteConfig(mode=ckpt["config"].palette)}
     _compare(mine, ckpt["state_layout"], metadata, f"{ckpt_path} was trained on", data_path, palette)
 
 
@@ -53,10 +56,10 @@ def check_same_world(reference, metadata, reference_path, data_path):
 
 
 def _compare(mine, layout, metadata, subject, data_path, palette, same=None, error=CheckpointError):
-    """check_data's comparisons of `mine` (world_fields; only "image_size" for an old checkpoint) and
-    `layout` (a state layout or None) with a dataset's metadata; `subject` opens the message ("X was
-    trained on", "X holds"). same: one fix for every difference, instead of each one's; error: the
-    exception raised."""
+    """check_data's comparisons of `mine` (world_fields; only "image_size" and "palette" for an old
+    checkpoint) and `layout` (a state layout or None) with a dataset's metadata; `subject` opens the
+    message ("X was trained on", "X holds"). same: one fix for every difference, instead of each
+    one's; error: the exception raised."""
     remake = "re-create it with `python -m oneshot.collect`"
     if not isinstance(metadata.get("world"), dict):
         raise error(f"{data_path} records no world config in its metadata; {remake}")
@@ -72,17 +75,16 @@ def _compare(mine, layout, metadata, subject, data_path, palette, same=None, err
     if a is not None and b is not None and _plain(a) != _plain(b):
         refuse(f"states laid out as {a}", f"states laid out as {b}",
                "use data collected by the oneshot that trained it, or re-train on this data")
-    if "horizon" not in mine:                    # an old checkpoint: its image size is all it records
-        return
-    a, b = mine["horizon"], theirs["horizon"]
-    if a != b:
-        refuse(f"{a}-step demos", f"{b}-step demos", f"use data collected with --horizon {a}")
-    a, b = mine["max_torque"], theirs["max_torque"]
-    if a != b:
-        refuse(f"torques of at most {a} N m", f"torques of at most {b} N m",
-               f"use data recorded with an arm of max_torque {a} (the policy's actions are divided by it)")
+    if "horizon" in mine:                        # (an old checkpoint records only its image size and palette)
+        a, b = mine["horizon"], theirs["horizon"]
+        if a != b:
+            refuse(f"{a}-step demos", f"{b}-step demos", f"use data collected with --horizon {a}")
+        a, b = mine["max_torque"], theirs["max_torque"]
+        if a != b:
+            refuse(f"torques of at most {a} N m", f"torques of at most {b} N m",
+                   f"use data recorded with an arm of max_torque {a} (the policy's actions are divided by it)")
     a, b = mine["palette"], theirs["palette"]
-    if palette and a != b:
+    if palette and (a.mode != b.mode or ("horizon" in mine and a != b)):   # an old checkpoint: its mode only
         field = "mode" if a.mode != b.mode else next(f.name for f in dataclasses.fields(PaletteConfig)
                                                      if getattr(a, f.name) != getattr(b, f.name))
         fix = (f"use data collected with --palette {a.mode} (or, to test the policy on other colours, "
@@ -91,3 +93,4 @@ def _compare(mine, layout, metadata, subject, data_path, palette, same=None, err
             refuse(f"the {a.mode!r} palette", f"the {b.mode!r} palette", fix)
         refuse(f"the {a.mode!r} palette with {field} {getattr(a, field)}",
                f"the {b.mode!r} palette with {field} {getattr(b, field)}", fix)
+
