@@ -125,3 +125,14 @@ def test_the_check_finds_wrong_commands(grammars):
     assert not ok("oneshot.train --profile litteral") and not ok("oneshot.train --profile=litteral")
     assert "--split test --trials 20" in _unwrap("the `python -m oneshot.evaluate CKPT --split\ntest --trials 20` row")
     assert grammars["oneshot.train"][None].keys() >= {"--profile", "--seed", "--run"}
+
+
+def test_the_readme_collects_the_test_data_each_shipped_policy_is_scored_on():
+    """The README's results name the collect command before each shipped policy's evaluation: the one
+    that `evaluate` would print for the test data its checkpoint records (a fresh clone has no data)."""
+    from oneshot.training import checkpoint, run_data
+    readme = _unwrap(open(os.path.join(ROOT, "README.md")).read())
+    for name in ("mil_default.npz", "mil_every_parameter.npz"):
+        cfg = checkpoint.load(os.path.join(ROOT, "oneshot", "pretrained", name))["config"]
+        row = next(line for line in readme.splitlines() if f"oneshot/pretrained/{name} --split test" in line)
+        assert f"`{run_data.collect_command(cfg, 'test')}`, then `python -m oneshot.evaluate" in row, name
