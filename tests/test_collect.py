@@ -4,6 +4,7 @@ stops every process and writes nothing."""
 import glob
 import os
 import pathlib
+import re
 import signal
 import subprocess
 import sys
@@ -102,7 +103,9 @@ def test_ctrl_c_stops_every_worker_says_one_line_and_writes_nothing(tmp_path):
         process.kill()
     err = err.decode()
     assert process.returncode == 130, err
-    assert err.count("\n") == 1 and err.split("\r")[-1] == "error: interrupted\n", err   # the bar is wiped
+    assert err.count("\n") == 1, err                         # the bar is wiped: one line
+    assert re.fullmatch(r"error: interrupted while collecting train demos \(\d+ of 288 recorded\); nothing of this "
+                        r"dataset was written: run the same command again\n", err.split("\r")[-1]), err
     assert "Traceback" not in err
     assert [w for w in workers if os.path.exists(f"/proc/{w}")] == [] and orphans_of(process.pid) == []
     assert list(tmp_path.iterdir()) == []                     # no dataset, no .tmp-* file

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from oneshot import collect, evaluate
-from oneshot.data import datasets
+from oneshot.data import collection, datasets
 from oneshot.experiments import __main__ as command, fig2, folders, lines, parts
 from oneshot.experiments import sweep as sweeping
 from oneshot.training.scoring import wilson_interval
@@ -707,6 +707,31 @@ def test_an_interrupted_sweep_counts_the_runs_it_has_finished(tmp_path, monkeypa
                              *keep]) == 130
         assert (f"error: interrupted; {finished} of {len(plan(TINY))} runs finished (o/runs.csv), the others continue "
                 f"from their checkpoints" in capsys.readouterr().err)
+
+
+def test_ctrl_c_while_a_sweep_collects_its_data_names_the_collection_not_runs(tmp_path, monkeypatch, capsys):
+    """Ctrl-C during `fig2`'s data collection (`--data-only` or before the runs): one line saying how far
+    the collection got and that nothing of that dataset was written, not "0 of N runs finished, the others
+    continue from their checkpoints" (there are none); status 130, no file in --data."""
+    monkeypatch.chdir(tmp_path)
+    recorded, real = [], collection._demo_job
+
+    def job(args):                           # the second demo is interrupted
+        if recorded:
+            raise KeyboardInterrupt
+        recorded.append(args)
+        return real(args)
+    monkeypatch.setattr(collection, "_demo_job", job)
+    monkeypatch.setattr(command, "ensure_data", lambda cfg, data, progress: fig2.ensure_data(cfg, data, 1, progress))
+    for only in (["--data-only"], []):
+        recorded.clear()
+        with pytest.raises(SystemExit) as e:
+            cli.run(command.main, ["fig2", "--profile", "tiny", "--data", "d", "--no-progress", *only])
+        train = TINY.splits()["train"]
+        assert e.value.code == 130 and capsys.readouterr().err.splitlines()[-1] == (
+            f"error: interrupted while collecting train demos (1 of {train[0] * train[1]} recorded); nothing of "
+            f"this dataset was written: run the same command again")
+        assert glob.glob(os.path.join("d", "**", "*"), recursive=True) == []
 
 
 def test_a_work_folder_resumed_with_other_data_is_refused_once_before_collecting(tmp_path, monkeypatch, capsys):

@@ -67,6 +67,11 @@ def _worker_start(parent):
     signal.signal(signal.SIGTERM, signal.SIG_DFL)        # terminate() ends them quietly, whatever the parent's handler
 
 
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C (or SIGTERM, handled as Ctrl-C) while `collect` ran: its message says how far it got and
+    that nothing was written (callers save a dataset only once it is whole, atomically)."""
+
+
 def collect(n_tasks, demos_per_task, split="train", seed=0, workers=None, world_cfg=None,
             expert_cfg=controller.ExpertConfig(), progress=True):
     """Record a dataset (see `oneshot.data.datasets`). workers: processes (default: all cores); the dataset is the
@@ -100,8 +105,11 @@ def collect(n_tasks, demos_per_task, split="train", seed=0, workers=None, world_
                 failures += failed
                 iterations.append(d["ilqg_iterations"])
                 bar.update()
-    except BaseException:
+    except BaseException as e:
         bar.leave = False              # wipe the half-drawn bar, so the error is the one line left
+        if isinstance(e, KeyboardInterrupt):
+            raise Interrupted(f"interrupted while collecting {split} demos ({len(iterations)} of {len(jobs)} "
+                              f"recorded); nothing of this dataset was written: run the same command again") from None
         raise
     finally:
         bar.close()

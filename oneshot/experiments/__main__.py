@@ -36,7 +36,6 @@ import argparse
 import contextlib
 import os
 import shlex
-import signal
 import sys
 
 from oneshot.experiments.difference import add_difference_command, run_difference_command
@@ -45,6 +44,7 @@ from oneshot.experiments.folders import check_comparable, check_finished, check_
 from oneshot.experiments.lines import LABELS, LINES
 from oneshot.experiments.parts import narrow
 from oneshot import methods
+from oneshot.data import collection
 from oneshot.experiments.rows import read_rows
 from oneshot.experiments.ship import add_ship_command, run_ship_command
 from oneshot.experiments.summary import (PLOTS, compare, plot, pool_evaluations, read_evaluations, summarise,
@@ -60,10 +60,6 @@ except ImportError:
 
 
 SCHEDULER_TIMEOUT = "10s"     # how long to try a Dask scheduler before saying it cannot be reached
-
-
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt
 
 
 def _executor(args, stack):
@@ -173,8 +169,7 @@ def main(argv=None):
     except ValueError as e:
         f.error(f"argument --data: {e}")
     workers = min(args.workers or 2, os.cpu_count() or 1, len(runs))      # more would only share the cores
-    previous = signal.signal(signal.SIGTERM, _interrupt)    # a plain kill stops the sweep as Ctrl-C does
-    try:
+    try:                                       # (a plain kill stops the sweep as Ctrl-C does: `cli.run`)
         with contextlib.ExitStack() as stack:
             try:
                 executor = _executor(args, stack)  # before any work: an unreachable scheduler fails now
@@ -190,14 +185,14 @@ def main(argv=None):
                              progress=not args.no_progress, workers=workers, keep_rows=args.keep_rows)
             except SweepLocked as e:
                 sys.exit(f"error: {e}")
+    except collection.Interrupted:             # collecting data: no run has started; it says how far it got
+        raise
     except KeyboardInterrupt:
         done = done_rows(out, args.work, args.keep_rows)
         print(f"error: interrupted; {sum(r.run_id in done for r in runs)} of {len(runs)} runs finished "
               f"({os.path.join(out, 'runs.csv')}), the others continue from their checkpoints: run the same "
               f"command to resume", file=sys.stderr)
         return 130
-    finally:
-        signal.signal(signal.SIGTERM, previous)
     if len(rows) < len(runs):                  # a summary is of the whole sweep: the notebooks trust it
         print(f"{len(rows)} of {len(runs)} runs finished ({os.path.join(out, 'runs.csv')}); run the same "
               f"command again to finish the others: no summary or figure until then")
