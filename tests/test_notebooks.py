@@ -214,11 +214,13 @@ EXPERIMENT_VALUES = """{
 
 
 def test_experiments(fig2_results, tmp_path):
-    _, v = execute(with_results(fig2_results), "04_experiments.ipynb", tmp_path, values=EXPERIMENT_VALUES)
+    nb, v = execute(with_results(fig2_results), "04_experiments.ipynb", tmp_path, values=EXPERIMENT_VALUES)
+    printed = stdout(*nb.cells).splitlines()
     profile = next((p for p in ("paper", "paper-validation") if (fig2_results / f"fig2_{p}" / "summary.json").exists()),
                    "quick")
     rows, summary = fig2.load_results(str(fig2_results / f"fig2_{profile}"))
     assert v["results"] == str(fig2_results) and v["profile"] == profile
+    assert f"reproduce: python -m oneshot.experiments fig2 --profile {profile}" in printed
     # Section 2: every method and size the summary holds, and every run.
     points = {(m, p["size"]): p for m, ps in summary["methods"].items() for p in ps}
     assert sorted(v["methods"]) == sorted(summary["methods"]) and v["rows"] == len(rows) == summary["runs"]
@@ -254,6 +256,8 @@ def test_experiments(fig2_results, tmp_path):
     # of held-out colours of the grid palette.
     recorded = {r["method"] for r in rows if "per_colour" in json.loads(r["notes"])}
     assert set(v["per_colour"]) == recorded
+    header = next(line.split() for line in printed if line.split()[:2] == ["colour", "name"])
+    assert header == ["colour", "name", *v["per_colour"]]           # each method's column apart from the next
     scored = summary.get("config", {}).get("score", "validation")      # the split the sweep scored
     heldout = set(palette.split_colours(scored, palette.PaletteConfig(mode="grid")).tolist())
     for method, counts in v["per_colour"].items():
