@@ -134,7 +134,8 @@ def main(argv=None):
     p.add_argument("--out", type=cli.writable_folder, default="demo_out",
                    help="folder for the pictures (default: demo_out; checked before the work)")
     p.add_argument("--checkpoint", default=None,
-                   help="meta-trained policy (default: the shipped one; without it, the expert's demos only)")
+                   help="meta-trained policy (default: the shipped one; if that file is missing, the expert's "
+                        "demos only)")
     p.add_argument("--trials", type=cli.positive_int, default=3, help="new scenes per test colour (default 3)")
     p.add_argument("--seed", type=cli.non_negative_int, default=0, help="seed of the demos and trial scenes")
     args = p.parse_args(argv)
