@@ -15,7 +15,7 @@ from oneshot.tools import cli
 from oneshot.world import palette
 from oneshot.world.reach import WorldConfig
 from oneshot.data import datasets
-from oneshot.data.collection import collect, task_colours
+from oneshot.data.collection import collect, task_colours, unwritten
 
 
 def main(argv=None):
@@ -64,8 +64,9 @@ def main(argv=None):
     cores = os.cpu_count() or 1
     workers = min(args.workers or cores, cores, args.tasks * args.demos)   # more would only wait
     start = time.perf_counter()
-    dataset = collect(args.tasks, args.demos, args.split, args.seed, workers, world_cfg,
-                      controller.ExpertConfig(action_noise=args.noise))
+    with unwritten(args.out):
+        dataset = collect(args.tasks, args.demos, args.split, args.seed, workers, world_cfg,
+                          controller.ExpertConfig(action_noise=args.noise))
     seconds = time.perf_counter() - start
     meta = datasets.save(dataset, args.out)
     print(f"wrote {args.out}: {args.tasks} tasks x {args.demos} demos ({args.split} colours) with {workers} "

@@ -158,7 +158,7 @@ def main(argv=None):
     expert_cfg = controller.ExpertConfig(action_noise=ckpt["config"].demo_noise if ckpt else 0.0)
 
     # 1. One expert demonstration per test colour, in the world the policy was trained in (its image
-    # size, horizon, arm and palette; older checkpoints record only the image size).
+    # size, horizon, arm and palette; older checkpoints record only the image size and palette mode).
     world = ReachWorld(dataclasses.replace(fit_check.world_config(ckpt) if ckpt else WorldConfig(), split=SPLIT))
     colours = palette.split_colours(SPLIT, world.config.palette)
     print(f"1. The iLQG expert records ONE demonstration for each of the {len(colours)} {SPLIT} colours")

@@ -159,6 +159,10 @@ def test_an_old_style_checkpoint_loads_and_is_checked_by_its_network_image_size_
     rewrite(path, lambda meta: meta["config"].update(palette="grid"))      # recorded: its own mode
     fit_check.check_data(checkpoint.load(path), grid, "old.npz", "grid.npz")
     assert fit_check.world_config(checkpoint.load(path)).palette == PaletteConfig(mode="grid")
+    rewrite(path, lambda meta: meta["config"].update(palette="Grid"))      # edited by hand: named, not a crash
+    with pytest.raises(checkpoint.CheckpointError, match=r"old\.npz'?: meta 'config': unknown palette 'Grid'; "
+                                                         r"use one of \('hues', 'grid'\)"):
+        checkpoint.load(path)
 
 
 SHIPPED_HELDOUT = pathlib.Path(__file__).parent.parent / "data" / "heldout.npz"

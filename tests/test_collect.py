@@ -1,6 +1,7 @@
 """Collecting a dataset from the command line: the file is the content (the same bytes whatever the
 worker count or the hour), a horizon too short for the expert is a named one-line error, and Ctrl-C
 stops every process and writes nothing."""
+import dataclasses
 import glob
 import os
 import pathlib
@@ -14,6 +15,7 @@ import numpy as np
 import pytest
 
 from oneshot.data import collection, datasets
+from oneshot.training import config, run_data
 from oneshot.world.reach import WorldConfig
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -104,9 +106,25 @@ def test_ctrl_c_stops_every_worker_says_one_line_and_writes_nothing(tmp_path):
     err = err.decode()
     assert process.returncode == 130, err
     assert err.count("\n") == 1, err                         # the bar is wiped: one line
-    assert re.fullmatch(r"error: interrupted while collecting train demos \(\d+ of 288 recorded\); nothing of this "
-                        r"dataset was written: run the same command again\n", err.split("\r")[-1]), err
+    assert re.fullmatch(r"error: interrupted while collecting train demos \(\d+ of 288 recorded\); "
+                        + re.escape(str(out)) + r" was not written: run the same command again\n", err.split("\r")[-1]), err
     assert "Traceback" not in err
     assert [w for w in workers if os.path.exists(f"/proc/{w}")] == [] and orphans_of(process.pid) == []
     assert list(tmp_path.iterdir()) == []                     # no dataset, no .tmp-* file
 
+
+
+def test_ctrl_c_while_train_collects_a_missing_dataset_names_the_file_not_written(tmp_path, monkeypatch):
+    """`train` collects a missing dataset before its first iteration: Ctrl-C then says how far the
+    collection got, which file was not written, and to run the same command again (no run exists yet
+    to --resume)."""
+    def interrupted(*args, **kwargs):
+        raise collection.Interrupted("interrupted while collecting train demos (3 of 864 recorded)")
+    monkeypatch.setattr(collection, "collect", interrupted)
+    cfg = dataclasses.replace(config.PROFILES["smoke"], train_data=str(tmp_path / "t.npz"),
+                              validation_data=str(tmp_path / "v.npz"))
+    with pytest.raises(collection.Interrupted) as e:
+        run_data.ensure(cfg, progress=False)
+    assert str(e.value) == (f"interrupted while collecting train demos (3 of 864 recorded); {tmp_path / 't.npz'} "
+                            f"was not written: run the same command again")
+    assert list(tmp_path.iterdir()) == []

@@ -711,7 +711,7 @@ def test_an_interrupted_sweep_counts_the_runs_it_has_finished(tmp_path, monkeypa
 
 def test_ctrl_c_while_a_sweep_collects_its_data_names_the_collection_not_runs(tmp_path, monkeypatch, capsys):
     """Ctrl-C during `fig2`'s data collection (`--data-only` or before the runs): one line saying how far
-    the collection got and that nothing of that dataset was written, not "0 of N runs finished, the others
+    the collection got and that its dataset was not written, not "0 of N runs finished, the others
     continue from their checkpoints" (there are none); status 130, no file in --data."""
     monkeypatch.chdir(tmp_path)
     recorded, real = [], collection._demo_job
@@ -728,10 +728,22 @@ def test_ctrl_c_while_a_sweep_collects_its_data_names_the_collection_not_runs(tm
         with pytest.raises(SystemExit) as e:
             cli.run(command.main, ["fig2", "--profile", "tiny", "--data", "d", "--no-progress", *only])
         train = TINY.splits()["train"]
+        path = fig2.data_paths(TINY, "d")["train"]
         assert e.value.code == 130 and capsys.readouterr().err.splitlines()[-1] == (
-            f"error: interrupted while collecting train demos (1 of {train[0] * train[1]} recorded); nothing of "
-            f"this dataset was written: run the same command again")
-        assert glob.glob(os.path.join("d", "**", "*"), recursive=True) == []
+            f"error: interrupted while collecting train demos (1 of {train[0] * train[1]} recorded); {path} was not "
+            f"written: run the same command again")
+        assert [files for _, _, files in os.walk("d") if files] == []          # no dataset, no .tmp-* file
+    # Ctrl-C before the runs but not while collecting (saving a dataset, starting a Dask cluster): no run
+    # had started, so none is counted or said to continue from a checkpoint.
+    monkeypatch.setattr(command, "ensure_data", lambda *args, **kwargs: _raise(KeyboardInterrupt()))
+    with pytest.raises(SystemExit) as e:
+        cli.run(command.main, ["fig2", "--profile", "tiny", "--data", "d", "--no-progress"])
+    assert e.value.code == 130 and capsys.readouterr().err.splitlines()[-1] == (
+        "error: interrupted before any run started: run the same command again")
+
+
+def _raise(error):
+    raise error
 
 
 def test_a_work_folder_resumed_with_other_data_is_refused_once_before_collecting(tmp_path, monkeypatch, capsys):

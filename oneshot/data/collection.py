@@ -5,6 +5,7 @@ Every demo's scene seed is derived from (seed, task, demo, attempt) (`scene_seed
 the same whatever the number of worker processes. A demo the expert fails is retried on a fresh scene
 and counted in the metadata; a horizon too short for the expert fails every scene (ExpertFailed).
 """
+import contextlib
 import dataclasses
 import multiprocessing
 import os
@@ -68,8 +69,18 @@ def _worker_start(parent):
 
 
 class Interrupted(KeyboardInterrupt):
-    """Ctrl-C (or SIGTERM, handled as Ctrl-C) while `collect` ran: its message says how far it got and
-    that nothing was written (callers save a dataset only once it is whole, atomically)."""
+    """Ctrl-C (or SIGTERM, handled as Ctrl-C) while `collect` ran: its message says how far it got
+    (`unwritten` adds what a command should say)."""
+
+
+@contextlib.contextmanager
+def unwritten(path):
+    """Around collecting a dataset and saving it at `path` (whole, atomically): Interrupted also says that
+    `path` was not written, and to run the same command again."""
+    try:
+        yield
+    except Interrupted as e:
+        raise Interrupted(f"{e}; {path} was not written: run the same command again") from None
 
 
 def collect(n_tasks, demos_per_task, split="train", seed=0, workers=None, world_cfg=None,
@@ -109,7 +120,7 @@ def collect(n_tasks, demos_per_task, split="train", seed=0, workers=None, world_
         bar.leave = False              # wipe the half-drawn bar, so the error is the one line left
         if isinstance(e, KeyboardInterrupt):
             raise Interrupted(f"interrupted while collecting {split} demos ({len(iterations)} of {len(jobs)} "
-                              f"recorded); nothing of this dataset was written: run the same command again") from None
+                              f"recorded)") from None
         raise
     finally:
         bar.close()

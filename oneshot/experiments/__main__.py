@@ -44,7 +44,6 @@ from oneshot.experiments.folders import check_comparable, check_finished, check_
 from oneshot.experiments.lines import LABELS, LINES
 from oneshot.experiments.parts import narrow
 from oneshot import methods
-from oneshot.data import collection
 from oneshot.experiments.rows import read_rows
 from oneshot.experiments.ship import add_ship_command, run_ship_command
 from oneshot.experiments.summary import (PLOTS, compare, plot, pool_evaluations, read_evaluations, summarise,
@@ -169,6 +168,7 @@ def main(argv=None):
     except ValueError as e:
         f.error(f"argument --data: {e}")
     workers = min(args.workers or 2, os.cpu_count() or 1, len(runs))      # more would only share the cores
+    sweeping = False
     try:                                       # (a plain kill stops the sweep as Ctrl-C does: `cli.run`)
         with contextlib.ExitStack() as stack:
             try:
@@ -180,14 +180,16 @@ def main(argv=None):
             if args.data_only:
                 print(f"the {cfg.name} profile's datasets are in {args.data}")
                 return 0
+            sweeping = True
             try:
                 rows = sweep(runs, out, args.work, run_context(cfg, args.data), run_one, executor=executor,
                              progress=not args.no_progress, workers=workers, keep_rows=args.keep_rows)
             except SweepLocked as e:
                 sys.exit(f"error: {e}")
-    except collection.Interrupted:             # collecting data: no run has started; it says how far it got
-        raise
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:
+        if not sweeping:                       # no run had started: collecting data (it says how far) or a cluster
+            raise KeyboardInterrupt(str(e) or "interrupted before any run started: run the same command again") \
+                from None
         done = done_rows(out, args.work, args.keep_rows)
         print(f"error: interrupted; {sum(r.run_id in done for r in runs)} of {len(runs)} runs finished "
               f"({os.path.join(out, 'runs.csv')}), the others continue from their checkpoints: run the same "

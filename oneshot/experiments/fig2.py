@@ -161,7 +161,8 @@ def ensure_data(cfg, data_dir, workers=None, progress=True):
         c, d = cfg.splits()[split]
         if not os.path.exists(path):
             print(f"collecting {path}: {c} {split} colours x {d} demos", file=sys.stderr)
-            data = collection.collect(c, d, split, run_data.SEEDS[split], workers, world_cfg, expert_cfg, progress)
+            with collection.unwritten(path):
+                data = collection.collect(c, d, split, run_data.SEEDS[split], workers, world_cfg, expert_cfg, progress)
             datasets.save(data, path)
 
 

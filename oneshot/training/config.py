@@ -10,6 +10,7 @@ import dataclasses
 from dataclasses import dataclass
 
 from oneshot.policy.network import check_architecture
+from oneshot.world.palette import MODES as PALETTES
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,8 @@ class TrainConfig:
 
     def __post_init__(self):
         check_architecture(self.init, self.channels, self.hidden)     # before any data is collected
+        if self.palette not in PALETTES:       # (a checkpoint's too, read back: `checkpoint_meta.read_config`)
+            raise ValueError(f"unknown palette {self.palette!r}; use one of {PALETTES}")
         object.__setattr__(self, "channels", tuple(self.channels))
         object.__setattr__(self, "hidden", tuple(self.hidden))
 

@@ -35,7 +35,9 @@ def check_data(ckpt, metadata, ckpt_path, data_path, palette=True):
     state layout, the same torque bound (the policy's actions are torques divided by it) and, with
     palette=True, the same palette (a task is a palette index: in another palette it is another
     colour). Older checkpoints record no world: then only the image size (the network's) and the
-    palette's mode (their config's; "hues", the only one, before configs recorded it) are checked.
+    palette's mode (their config's; "hues", the only one, before configs recorded it) are checked. (For
+    twelve commits of 2026-11-23 a config's palette was not checked against its training data's: such a
+    checkpoint may record "hues" for grid data; --any-palette scores it.)
     A state layout is compared when both record one (datasets and checkpoints recording none have
     `datasets.STATE_LAYOUT`)."""
     trained = ckpt["world"]
@@ -93,4 +95,3 @@ def _compare(mine, layout, metadata, subject, data_path, palette, same=None, err
             refuse(f"the {a.mode!r} palette", f"the {b.mode!r} palette", fix)
         refuse(f"the {a.mode!r} palette with {field} {getattr(a, field)}",
                f"the {b.mode!r} palette with {field} {getattr(b, field)}", fix)
-

@@ -134,8 +134,10 @@ def ensure(cfg, splits=("train", "validation"), progress=True):
             print(f"{path} is missing: collecting it ({collect_command(cfg, split)})", file=sys.stderr)
             world_cfg = WorldConfig(palette=PaletteConfig(mode=cfg.palette))
             colours, demos = collected_size(cfg, split)
-            datasets.save(collection.collect(colours, demos, split, seed, progress=progress, world_cfg=world_cfg,
-                                             expert_cfg=ExpertConfig(action_noise=cfg.demo_noise)), path)
+            with collection.unwritten(path):
+                data = collection.collect(colours, demos, split, seed, progress=progress, world_cfg=world_cfg,
+                                          expert_cfg=ExpertConfig(action_noise=cfg.demo_noise))
+            datasets.save(data, path)
         out.append(load(cfg, split))
     return out
 
