@@ -42,7 +42,7 @@ def check_data(ckpt, metadata, ckpt_path, data_path, palette=True):
     `datasets.STATE_LAYOUT`)."""
     trained = ckpt["world"]
     mine = world_fields(trained, f"{ckpt_path}: meta 'world'") if trained is not None else \
-        {"image_size": ckpt["network"].image_size, "palette": PaletteConfig(mode=ckpt["config"].palette)}
+        {"image_size": ckpt["network"].image_size, "palette": world_config(ckpt).palette}
     _compare(mine, ckpt["state_layout"], metadata, f"{ckpt_path} was trained on", data_path, palette)
 
 
