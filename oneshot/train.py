@@ -133,14 +133,14 @@ def main(argv=None):
     if method.shards > frames:
         p.error(f"argument --shards: the processes share each demo's {frames} frames, so 1 to {frames}; "
                 f"got {cfg.shards}")
+    banner = []                                # printed once the run folder is ours (not if another run has it)
     if start < cfg.iterations or not method.learns:     # (else train() says there is nothing to train)
         work = (f"fitting the {cfg.method} policy" if not method.learns else
                 f"training {_iterations(cfg.iterations - start)}" + (f" (from {start})" if start else ""))
         settings = "the run's own settings" if args.resume and args.profile is None else f"profile {profile}"
-        print(f"{work}: {settings}, seed {cfg.seed}, into {ckpt_path}"
-              + (" (Ctrl-C saves it; --resume continues)" if method.learns else ""))
-    if method.describe():
-        print(method.describe())
+        banner.append(f"{work}: {settings}, seed {cfg.seed}, into {ckpt_path}"
+                      + (" (Ctrl-C saves it; --resume continues)" if method.learns else ""))
+    banner += [method.describe()] if method.describe() else []
     host.tune_malloc()
     # One BLAS thread, in this process as in every shard (`oneshot.tools.host`): the products are small, so
     # a second thread gains at most a few percent on idle cores (default profile on one process: 0.0454 s
@@ -150,7 +150,7 @@ def main(argv=None):
     t0 = time.perf_counter()
     previous = signal.signal(signal.SIGTERM, _terminate)    # a plain kill stops training as Ctrl-C does
     try:
-        train(cfg, run, resume=args.resume)
+        train(cfg, run, resume=args.resume, on_start=lambda: print(*banner, sep="\n") if banner else None)
     finally:
         signal.signal(signal.SIGTERM, previous)
     done = (f"fitted the {cfg.method} policy" if not method.learns else

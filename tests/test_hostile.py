@@ -473,6 +473,7 @@ def test_a_second_training_in_the_same_folder_is_refused(tmp_path, tiny_cfg):
                               capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=120)
     assert done.returncode == 1 and done.stderr == (f"error: another process (pid {os.getpid()}) is training in "
                                                     f"{str(run)!r}; wait for it to end, or use another --run folder\n")
+    assert done.stdout == ""                                  # no "training ... into" banner before the refusal
     assert [p.name for p in run.iterdir()] == [".lock"]   # nothing else was written, and the folder kept
     run_folder.train(tiny_cfg, run, progress=False)            # free again once the owner is gone
 

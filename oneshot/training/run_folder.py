@@ -90,20 +90,24 @@ def _own(lock, run_dir):
             os.remove(stale)
 
 
-def train(cfg, run_dir, resume=False, progress=True, stop_after=None):
+def train(cfg, run_dir, resume=False, progress=True, stop_after=None, on_start=None):
     """Meta-train a policy (Sections II-III) in a run folder: MAML on behavioural cloning, or a baseline
     of Section IV with the same data, loss, optimiser and checkpoints (cfg.method, `oneshot.methods`).
 
     run_dir: folder for checkpoint.npz and log.jsonl (locked while training: `lock_run`). resume:
     continue from its checkpoint (the rest of the run is then identical to an uninterrupted one).
-    stop_after: leave after this many iterations of this call (to test resuming). Ctrl-C saves a
-    checkpoint of the last finished iteration and raises `Interrupted`. Returns the final parameters.
+    stop_after: leave after this many iterations of this call (to test resuming). on_start: called once
+    the run folder is locked, before any data is read (a command's banner: none when another process
+    has the folder). Ctrl-C saves a checkpoint of the last finished iteration and raises `Interrupted`.
+    Returns the final parameters.
     """
     method = methods.of(cfg)                     # bad names fail here, not later
     loop.learning_rate(cfg, 0)
     if not 0.0 <= cfg.ema < 1.0:
         raise ValueError(f"ema is the moving average's decay, in [0, 1) (0: off; e.g. 0.999); got {cfg.ema!r}")
     with lock_run(run_dir):
+        if on_start:
+            on_start()
         return _train(method, cfg, run_dir, resume, progress, stop_after)
 
 
