@@ -172,6 +172,33 @@ def test_the_gradebook_is_written_through_links_and_never_to_a_device(tmp_path):
     assert stat.S_ISCHR(os.stat(os.devnull).st_mode)                 # still the device
 
 
+def test_a_gradebook_replaces_only_a_gradebook(tmp_path, capsys):
+    """--csv and --json may replace what `grade` wrote before, never another file (a README, a dataset),
+    never each other, and never under a submission's name (the next `grade` of its folder would grade
+    it); each refused in one line, exit 2, before any grading, the file untouched."""
+    graded = [Graded("alice.py", [9], {9: "correct"})]
+    for kind, text in (("csv", gradebook.csv_text), ("json", gradebook.json_text)):
+        path = tmp_path / f"old.{kind}"
+        gradebook.write(str(path), text(graded, [9]))
+        assert gradebook.is_gradebook(str(path), kind) and not gradebook.is_gradebook(str(path), {"csv": "json",
+                                                                                               "json": "csv"}[kind])
+    (tmp_path / "README.md").write_text("# read me\n")
+    (tmp_path / "notes.json").write_text('{"exercises": [9]}')         # JSON, but not what grade writes
+    (tmp_path / "class").mkdir()
+    (tmp_path / "class" / "alice.py").write_text("x = 1\n")
+    refused = [["--json", str(tmp_path / "README.md")], ["--csv", str(tmp_path / "README.md")],
+               ["--json", str(tmp_path / "notes.json")], ["--csv", str(tmp_path / "old.json")],
+               ["--csv", str(tmp_path / "both"), "--json", str(tmp_path / "both")],
+               ["--csv", str(tmp_path / "class" / "out.py")], ["--json", str(tmp_path / "grades.ipynb")]]
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    for flags in refused:
+        with pytest.raises(SystemExit) as e:
+            cli.run(cli_main.main, ["grade", str(tmp_path / "class"), *flags])
+        said = capsys.readouterr()
+        assert e.value.code == 2 and len(said.err.strip().splitlines()) == 1 and said.out == "", (flags, said)
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
 def test_the_gradebooks_columns_for_hand_made_grades():
     """Three students, graded by hand: each column as the module's docstring defines it. A student's name
     keeps its inner dots ("jean.luc.py" is jean.luc; a folder "carol.v2/" keeps its dot); a load error is

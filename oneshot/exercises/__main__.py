@@ -22,7 +22,7 @@ import sys
 from oneshot.exercises import EXERCISES, gradebook
 from oneshot.exercises.grading import grade, grade_submission
 from oneshot.exercises.sandbox import Limits, sandbox_gaps
-from oneshot.exercises.submissions import SubmissionError, is_submission, passed_over, submissions
+from oneshot.exercises.submissions import SUFFIXES, SubmissionError, is_submission, passed_over, submissions
 from oneshot.tools import cli
 
 _BASELINE_MB = 300                 # what a sandbox maps before the submission runs (Python, NumPy, autograd)
@@ -103,9 +103,15 @@ def _grade(args):
         found = submissions(args.dir)
     except SubmissionError as e:
         return _bad(str(e))
-    for flag, path in (("--csv", args.csv), ("--json", args.json)):
+    if args.csv and args.json and os.path.realpath(args.csv) == os.path.realpath(args.json):
+        raise ValueError(f"--csv and --json both name {args.json}; name two files")
+    for flag, path, kind in (("--csv", args.csv, "csv"), ("--json", args.json, "json")):
         if path:
             cli.not_an_input(path, found, flag, "a submission")
+            if path.endswith(SUFFIXES):          # the next `grade` of its folder would grade it
+                raise ValueError(f"{flag} {path} is named like a submission ({'/'.join(SUFFIXES)}); name it .{kind}")
+            cli.replaces_only(path, lambda p, kind=kind: gradebook.is_gradebook(p, kind), flag,
+                              f"a gradebook ({kind.upper()}) that grade wrote")
     jobs = min(args.jobs or os.cpu_count() or 1, len(found))
     cli.check_memory(jobs * (args.memory + _BASELINE_MB) << 20,
                      f"{jobs} submissions at once (--jobs) x --memory {args.memory} MB (+{_BASELINE_MB} MB each "

@@ -62,6 +62,19 @@ def json_text(graded, numbers):
     return json.dumps({"exercises": list(numbers), "students": students}, indent=1) + "\n"
 
 
+# How each gradebook this module writes begins: an output may replace a file that begins so, never another.
+_BEGINS = {"csv": b"student,submission,", "json": b'{\n "exercises": ['}
+
+
+def is_gradebook(path, kind):
+    """May a gradebook of `kind` ("csv" or "json") replace the existing file `path`: did this module
+    write it (it begins as `csv_text` or `json_text` does)? Anything else (a README, a dataset, a
+    notebook) is not ours to overwrite. A device or a FIFO is refused (`files.open_read`)."""
+    begins = _BEGINS[kind]
+    with files.open_read(path) as f:
+        return f.read(len(begins)) == begins
+
+
 def write(path, text):
     """Write `text` (UTF-8) to `path` atomically, through a symbolic link to its target (`files.atomic_write`:
     a regular file or nothing yet; a folder, a device or a FIFO is refused)."""
