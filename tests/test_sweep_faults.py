@@ -5,6 +5,7 @@ however it ends (kill -9, SIGTERM, Ctrl-C once or twice)."""
 import concurrent.futures
 import contextlib
 import fcntl
+import json
 import multiprocessing
 import os
 import shutil
@@ -98,6 +99,19 @@ GOOD = "mil-conv0,9,3,3,0,2,1.0,1,4,0.25,0.05,0.7,{}"
      r"line 2: not a runs.csv row \(0 colours x 3 demos"),
     (",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace("mil-conv0,9,3,3,", "mil-conv0,12,3,3,") + "\n",
      r"line 2: not a runs.csv row \(size 12 is not 3 colours x 3 demos\)"),
+    # notes' per_colour, which `difference` and the figure's intervals pair over colours
+    *((",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace("{}", '"{""per_colour"": ' + counts + '}"') + "\n",
+       r"line 2: not a runs.csv row \(its notes' per_colour " + says) for counts, says in (
+        ('{""0"": 999, ""1"": -998}', r"\(2 colours, 1 successes: 999 on colour 0, -998 on colour 1\) does not fit "
+                                     r"its 1 successes in 4 trials, 2 a colour"),
+        ('{""0"": 1, ""1"": 1}', r"\(2 colours, 2 successes\) does not fit its 1 successes"),
+        ('{""0"": 1, ""1"": 0, ""2"": 0}', r"\(3 colours, 1 successes\) does not fit its 1 successes in 4 trials, "
+                                          r"1.33333 a colour"),
+        ('{""0"": ""x"", ""1"": 0}', "is not {colour: successes}, whole numbers"),
+        ('{""0"": 1.0, ""1"": 0}', "is not {colour: successes}, whole numbers"),
+        ('{""a"": 1, ""1"": 0}', "is not {colour: successes}, whole numbers"),
+        ('{}', "is not {colour: successes}, whole numbers"),
+        ('[1, 0]', "is not {colour: successes}, whole numbers"))),
     ("", r"runs.csv is empty \(not even runs.csv's header\); delete it to start the sweep afresh"),
     ("\r\n", r"runs.csv is empty \(not even runs.csv's header\)"),
     # a quote that runs on: the row begins where it opens; deleting that line keeps the good rows it swallowed
@@ -115,6 +129,13 @@ def test_a_damaged_runs_csv_is_named_with_its_line(tmp_path, text, says):
     path.write_text(text)
     with pytest.raises(ValueError, match=says):
         sweep_rows.read_rows(path)
+
+
+def test_a_runs_csv_row_with_per_colour_counts_that_fit_is_read(tmp_path):
+    path = tmp_path / "runs.csv"
+    path.write_text(",".join(sweep_rows.COLUMNS) + "\n" + GOOD.replace("{}", '"{""per_colour"": {""0"": 1, ""1"": 0}}"')
+                    + "\n")
+    assert json.loads(sweep_rows.read_rows(path)[0]["notes"])["per_colour"] == {"0": 1, "1": 0}
 
 
 @pytest.mark.parametrize("data", [b"\xa7\x00\xff binary", (",".join(sweep_rows.COLUMNS) + "\n").encode() + b"\xa7\xff\n"])

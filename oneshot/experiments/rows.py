@@ -118,8 +118,11 @@ def read_rows(path, fix=None):
                                  f"{row['iterations']} iterations")
             if row["size"] != row["colours"] * row["demos_per_colour"]:
                 raise ValueError(f"size {row['size']} is not {row['colours']} colours x {row['demos_per_colour']} demos")
-            if not isinstance(json.loads(row["notes"]), dict):
+            notes = json.loads(row["notes"])
+            if not isinstance(notes, dict):
                 raise ValueError("its notes are not a JSON object")
+            if "per_colour" in notes:
+                _check_per_colour(notes["per_colour"], row["successes"], row["trials"])
             row_id(row)
         except (ValueError, TypeError) as e:                 # the row's lines, but empty ones (csv skips them)
             lines = io.StringIO(text, newline="").readlines()   # split as csv splits them
@@ -129,6 +132,21 @@ def read_rows(path, fix=None):
             advice = fix or f"delete line {line[0]} (its run is then done again) or move the file away"
             raise ValueError(f"{path}, {where}: not a runs.csv row ({e}); {advice}") from None
     return [row for _, row in rows]
+
+
+def _check_per_colour(counts, successes, trials):
+    """Raise ValueError unless `counts` (a row's notes' per_colour: {colour index: successes}, what
+    `stats.counts` pairs over colours) shares the row's trials equally among its colours, each colour's
+    successes within its trials, and sums to the row's successes."""
+    if not (isinstance(counts, dict) and counts and all(k.isdigit() for k in counts)
+            and all(type(v) is int for v in counts.values())):
+        raise ValueError("its notes' per_colour is not {colour: successes}, whole numbers")
+    each, rest = divmod(trials, len(counts))
+    wrong = [f"{v} on colour {k}" for k, v in counts.items() if not 0 <= v <= each]
+    if rest or wrong or sum(counts.values()) != successes:
+        raise ValueError(f"its notes' per_colour ({len(counts)} colours, {sum(counts.values())} successes"
+                         f"{': ' + ', '.join(wrong[:3]) if wrong else ''}) does not fit its {successes} successes "
+                         f"in {trials} trials, {trials / len(counts):g} a colour")
 
 
 def row_order(row):
