@@ -26,6 +26,9 @@ from oneshot.experiments import rows as sweep_rows
 from oneshot.experiments.rows import COLUMNS, RunSpec
 from oneshot.experiments.sweep import sweep
 from oneshot.tools import cli, host
+from oneshot.expert.controller import ExpertConfig
+from oneshot.world.palette import PaletteConfig
+from oneshot.world.reach import WorldConfig
 from test_checkpoint import _set, rewrite
 
 TINY = PROFILES["tiny"]
@@ -486,6 +489,38 @@ def test_cli_names_the_cluster_extra_when_dask_is_missing(monkeypatch, capsys):
         command.main(["fig2", "--scheduler", "tcp://localhost:8786"])
     err = capsys.readouterr().err
     assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and 'pip install ".[cluster]"' in err
+
+
+def test_a_wrong_or_damaged_dataset_in_data_is_named_once_before_any_run(tmp_path, capsys, tiny_argv):
+    """A file in --data that is not what the sweep collects (truncated; another seed; another image
+    size) is named in one line, exit 2, before any run starts. It was one failed run per line, exit 1,
+    and a 16-pixel meta-training set was blamed on the right validation file."""
+    data = tmp_path / "data"
+    fig2.ensure_data(TINY, data, workers=1, progress=False)
+    paths = fig2.data_paths(TINY, data)
+    good = {split: open(path, "rb").read() for split, path in paths.items()}
+    noise = ExpertConfig(action_noise=LINES["mil-conv0"].demo_noise)
+
+    def collected(split, seed, **world):
+        datasets.save(collection.collect(*TINY.splits()[split], split, seed, 1, WorldConfig(
+            palette=PaletteConfig(mode=TINY.palette_mode), **world), noise, False), tmp_path / "other.npz")
+        return (tmp_path / "other.npz").read_bytes()
+    wrong = [("train", good["train"][:len(good["train"]) // 2], "is not a readable .npz dataset (truncated or "
+                                                                "corrupt: File is not a zip file); move it away"),
+             ("validation", collected("validation", 7), "was collected with other settings than this run's "
+                                                       "validation data: seed 7, not 1"),
+             ("train", collected("train", run_data.SEEDS["train"], image_size=16),
+              "was collected in another world than this sweep's: image_size 16, not 32")]
+    capsys.readouterr()
+    for split, text, says in wrong:
+        open(paths[split], "wb").write(text)
+        with pytest.raises(SystemExit) as e:
+            cli.run(command.main, tiny_argv)
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and paths[split] in err and says in err, err
+        assert not (tmp_path / "out" / "runs.csv").exists() and not (tmp_path / "w").exists()   # no run started
+        open(paths[split], "wb").write(good[split])
+    assert command.main(tiny_argv) == 0 and len(sweep_rows.read_rows(tmp_path / "out" / "runs.csv")) == len(plan(TINY))
 
 
 def test_real_runs_resume_and_give_the_same_rows_in_threads_and_processes(tmp_path):

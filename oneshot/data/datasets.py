@@ -20,6 +20,7 @@ of worker processes, is the same file (`npz.write`). `load` checks the file as `
 metadata the package reads and a SHA-256 checksum of the arrays, and says exactly what is wrong with
 a bad, damaged or truncated file: every failure is a DatasetError naming the file.
 """
+import contextlib
 import json
 import os
 
@@ -198,6 +199,32 @@ def load(path):
     """
     path = os.fspath(path)
     source = repr(path)
+    with _opened(path) as (archive, meta):
+        data = {key: archive.read(key) for key in ARRAYS}
+    validate(data, source)
+    if checksum(data) != meta.get("checksum"):
+        raise DatasetError(f"{path!r} fails its checksum: the arrays were changed or damaged after "
+                           f"saving; {FIX}")
+    check_colours(data, meta, source)
+    data["metadata"] = meta
+    return data
+
+
+def read_metadata(path):
+    """The metadata of the dataset at `path`, checked against its arrays' shapes as `load` checks it,
+    without reading the arrays (a moment, where loading the largest dataset takes seconds): to refuse a
+    damaged or wrong file before work that would load it. Raises as `load` does; damage inside an
+    array, which only reading it finds, is left to `load`."""
+    with _opened(os.fspath(path)) as (_, meta):
+        return meta
+
+
+@contextlib.contextmanager
+def _opened(path):
+    """(the open npz.Reader, the checked metadata) of the dataset file at `path`: every .npy header,
+    the layout and the metadata checked, no array read yet. A damaged file, read then or while open,
+    raises DatasetError naming it; no file, FileNotFoundError."""
+    source = repr(path)
     if not os.path.exists(path):
         raise FileNotFoundError(f"no dataset at {path!r}; create one with `python -m oneshot.collect --out {path}`")
     if os.path.isdir(path):
@@ -208,18 +235,11 @@ def load(path):
             layout = {key: archive.layout[key] for key in ARRAYS if key in archive.layout}
             check_layout(layout, source)
             check_metadata(meta, layout, source)        # all before reading what may be gigabytes
-            data = {key: archive.read(key) for key in ARRAYS}
+            yield archive, meta
     except npz.Damaged as e:
         raise DatasetError(f"{path!r} is not a readable .npz dataset (truncated or corrupt: {e}); {FIX}") from e
     except files.RefusedPath as e:
         raise DatasetError(str(e)) from None
-    validate(data, source)
-    if checksum(data) != meta.get("checksum"):
-        raise DatasetError(f"{path!r} fails its checksum: the arrays were changed or damaged after "
-                           f"saving; {FIX}")
-    check_colours(data, meta, source)
-    data["metadata"] = meta
-    return data
 
 
 def _read_metadata(path, archive):

@@ -164,6 +164,27 @@ def ensure_data(cfg, data_dir, workers=None, progress=True):
             with collection.unwritten(path):
                 data = collection.collect(c, d, split, run_data.SEEDS[split], workers, world_cfg, expert_cfg, progress)
             datasets.save(data, path)
+        check_data(cfg, data_dir, split, world_cfg)
+
+
+def check_data(cfg, data_dir, split, world_cfg):
+    """Raise ValueError (one line: the file, what differs, the fix) unless the dataset of `split` in
+    `data_dir` is what the sweep collects (`run_data.check`: split, palette, seed, noise, colours x demos;
+    and the world, e.g. the image size), read from its metadata only: a damaged or wrong file is named
+    once, before any run starts, not by each run that loads it."""
+    path = data_paths(cfg, data_dir)[split]
+    again = "move it away (this command then collects it again), or name another --data"
+    try:
+        metadata = datasets.read_metadata(path)
+    except datasets.DatasetError as e:                  # its fix: collect it as this sweep does
+        raise datasets.DatasetError(f"{str(e).removesuffix('; ' + datasets.FIX)}; {again}") from None
+    run_data.check(run_config(plan(cfg)[0], run_context(cfg, data_dir)), split, metadata, path)
+    held = dataclasses.replace(datasets.world_config(metadata, repr(path)), split=world_cfg.split)
+    differ = [f"{f.name} {getattr(held, f.name)!r}, not {getattr(world_cfg, f.name)!r}"
+              for f in dataclasses.fields(WorldConfig) if getattr(held, f.name) != getattr(world_cfg, f.name)]
+    if differ:
+        raise run_data.DataMismatch(f"{path} was collected in another world than this sweep's: {'; '.join(differ)}; "
+                                    f"{again}")
 
 
 def run_context(cfg, data_dir="data/fig2"):
