@@ -832,6 +832,13 @@ def test_a_finished_run_ships_as_a_policy_that_scores_what_its_row_says(tmp_path
     spec = max((r for r in plan(TINY) if r.method == "mil-conv0" and r.seed == 0), key=lambda r: r.size)
     row = sweeping.execute(fig2.run_one, spec, os.path.abspath(os.path.join("w", spec.run_id)), run_context(TINY, "d"))
     own = os.path.join("w", spec.run_id, "checkpoint.npz")
+    os.rename(own, "aside.npz")                 # its row without its checkpoint: not `train --run` (another profile)
+    with pytest.raises(SystemExit) as e:
+        cli.run(command.main, ship)
+    assert e.value.code == 2 and "holds a finished run without its checkpoint.npz; move that folder aside and make " \
+        "it again with: python -m oneshot.experiments fig2 --profile tiny --lines mil-conv0 --seeds 0 --work w" in \
+        capsys.readouterr().err
+    os.rename("aside.npz", own)
     other = os.path.join("w", "mil-all_c3_d4_s0_i2", "checkpoint.npz")      # another run's, as trained
     os.makedirs(os.path.dirname(other))
     shutil.copyfile(own, other)

@@ -31,11 +31,14 @@ def finished_run(cfg, line, seed, work_dir):
                            f"{', '.join(cfg.methods)}; its seeds: {', '.join(map(str, cfg.seeds))})")
     spec = max(runs, key=lambda r: r.size)
     folder = os.path.join(work_dir, spec.run_id)
+    make = (f"python -m oneshot.experiments fig2 --profile {cfg.name} --lines {line} --seeds {seed} --work {work_dir}"
+            + ("" if len(cfg.sizes) == 1 else f" (that command trains the line at each of the profile's "
+                                               f"{len(cfg.sizes)} sizes; ship takes the largest)"))
     if not os.path.isfile(os.path.join(folder, ROW_FILE)):
-        sizes = ("" if len(cfg.sizes) == 1 else f" (that command trains the line at each of the profile's "
-                                                f"{len(cfg.sizes)} sizes; ship takes the largest)")
-        raise NotShippable(f"{folder} holds no finished run; make it with: python -m oneshot.experiments fig2 "
-                           f"--profile {cfg.name} --lines {line} --seeds {seed} --work {work_dir}{sizes}")
+        raise NotShippable(f"{folder} holds no finished run; make it with: {make}")
+    if not os.path.isfile(os.path.join(folder, "checkpoint.npz")):
+        raise NotShippable(f"{folder} holds a finished run without its checkpoint.npz; move that folder aside and "
+                           f"make it again with: {make}")
     return spec, folder
 
 
