@@ -40,7 +40,7 @@ import sys
 
 from oneshot.experiments.difference import add_difference_command, run_difference_command
 from oneshot.experiments.fig2 import PROFILES, ensure_data, load_results, plan, run_context, run_one
-from oneshot.experiments.folders import check_comparable, check_finished, check_results_folder, check_work_data
+from oneshot.experiments.folders import check_comparable, check_data, check_finished, check_results_folder, check_work_data
 from oneshot.experiments.lines import LABELS, LINES
 from oneshot.experiments.parts import narrow
 from oneshot import methods
@@ -177,6 +177,7 @@ def main(argv=None):
                 f.error(f"argument --scheduler: no Dask scheduler at {args.scheduler!r} ({e}); start one, or "
                         f"drop --scheduler to run here")
             ensure_data(cfg, args.data, progress=not args.no_progress)
+            check_data(cfg, args.data)
             if args.data_only:
                 print(f"the {cfg.name} profile's datasets are in {args.data}")
                 return 0

@@ -151,11 +151,16 @@ def data_paths(cfg, data_dir):
             for split, (c, d) in cfg.splits().items()}
 
 
+def sweep_world(cfg):
+    """The WorldConfig a sweep collects its datasets in (the split aside): its palette, the rest default."""
+    return WorldConfig(palette=PaletteConfig(mode=cfg.palette_mode))
+
+
 def ensure_data(cfg, data_dir, workers=None, progress=True):
     """Collect the sweep's datasets if missing (all cores; DART noise 0.1 N m as the default profile's):
     the first `cfg.data` colours x demos of the palette's meta-training split, every run training on the
     first part of it; `cfg.validation` of its validation colours and `cfg.test` of its test colours."""
-    world_cfg = WorldConfig(palette=PaletteConfig(mode=cfg.palette_mode))
+    world_cfg = sweep_world(cfg)
     expert_cfg = ExpertConfig(action_noise=PROFILES_TRAIN["default"].demo_noise)
     for split, path in data_paths(cfg, data_dir).items():
         c, d = cfg.splits()[split]
@@ -164,27 +169,6 @@ def ensure_data(cfg, data_dir, workers=None, progress=True):
             with collection.unwritten(path):
                 data = collection.collect(c, d, split, run_data.SEEDS[split], workers, world_cfg, expert_cfg, progress)
             datasets.save(data, path)
-        check_data(cfg, data_dir, split, world_cfg)
-
-
-def check_data(cfg, data_dir, split, world_cfg):
-    """Raise ValueError (one line: the file, what differs, the fix) unless the dataset of `split` in
-    `data_dir` is what the sweep collects (`run_data.check`: split, palette, seed, noise, colours x demos;
-    and the world, e.g. the image size), read from its metadata only: a damaged or wrong file is named
-    once, before any run starts, not by each run that loads it."""
-    path = data_paths(cfg, data_dir)[split]
-    again = "move it away (this command then collects it again), or name another --data"
-    try:
-        metadata = datasets.read_metadata(path)
-    except datasets.DatasetError as e:                  # its fix: collect it as this sweep does
-        raise datasets.DatasetError(f"{str(e).removesuffix('; ' + datasets.FIX)}; {again}") from None
-    run_data.check(run_config(plan(cfg)[0], run_context(cfg, data_dir)), split, metadata, path)
-    held = dataclasses.replace(datasets.world_config(metadata, repr(path)), split=world_cfg.split)
-    differ = [f"{f.name} {getattr(held, f.name)!r}, not {getattr(world_cfg, f.name)!r}"
-              for f in dataclasses.fields(WorldConfig) if getattr(held, f.name) != getattr(world_cfg, f.name)]
-    if differ:
-        raise run_data.DataMismatch(f"{path} was collected in another world than this sweep's: {'; '.join(differ)}; "
-                                    f"{again}")
 
 
 def run_context(cfg, data_dir="data/fig2"):

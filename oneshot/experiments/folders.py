@@ -1,15 +1,18 @@
 """The folders of Figure 2's sweeps as a command meets them before any run: may this sweep write to a
 results folder (`results/fig2_<profile>/`; `check_results_folder`: one profile's results to a folder),
 may its points be compared with the results there (`check_comparable`, `fig2 --compare`), do the
-runs of its work folder continue with these datasets (`check_work_data`), and does a results folder
-hold its whole sweep (`check_finished`, before `summarise`)?
+runs of its work folder continue with these datasets (`check_work_data`), are the datasets in its
+data folder the ones it collects (`check_data`), and does a results folder hold its whole sweep
+(`check_finished`, before `summarise`)?
 """
+import dataclasses
 import os
 
-from oneshot.experiments.fig2 import plan, run_config
+from oneshot.data import datasets
+from oneshot.experiments.fig2 import data_paths, plan, run_config, run_context, sweep_world
 from oneshot.experiments.rows import read_rows, row_id
 from oneshot.tools import files
-from oneshot.training import checkpoint
+from oneshot.training import checkpoint, run_data
 
 
 def check_results_folder(cfg, folder):
@@ -69,6 +72,27 @@ def check_work_data(runs, work_dir, context, done=()):
                                  f"--data {os.path.dirname(was)}, as its sweep did, or another --work")
             raise ValueError(f"{path} was trained on {was}, not {now}: it is another sweep's run; "   # same folder
                              f"name another --work")
+
+
+def check_data(cfg, data_dir):
+    """Raise ValueError (one line: the file, what differs, the fix) unless each dataset in `data_dir` is
+    what the sweep `cfg` collects there (`run_data.check`: split, palette, seed, noise, colours x demos;
+    and the world, e.g. the image size), read from its metadata only: a damaged or wrong file is named
+    once, before any run starts, not by each run that loads it."""
+    again = "move it away (this command then collects it again), or name another --data"
+    for split, path in data_paths(cfg, data_dir).items():
+        try:
+            metadata = datasets.read_metadata(path)
+        except datasets.DatasetError as e:              # its fix: collect it as this sweep does
+            raise datasets.DatasetError(f"{str(e).removesuffix('; ' + datasets.FIX)}; {again}") from None
+        run_data.check(run_config(plan(cfg)[0], run_context(cfg, data_dir)), split, metadata, path)
+        world = sweep_world(cfg)
+        held = dataclasses.replace(datasets.world_config(metadata, repr(path)), split=world.split)
+        differ = [f"{f.name} {getattr(held, f.name)!r}, not {getattr(world, f.name)!r}"
+                  for f in dataclasses.fields(world) if getattr(held, f.name) != getattr(world, f.name)]
+        if differ:
+            raise run_data.DataMismatch(f"{path} was collected in another world than this sweep's: "
+                                        f"{'; '.join(differ)}; {again}")
 
 
 def check_finished(folder, rows, summary):
