@@ -493,8 +493,9 @@ def test_cli_names_the_cluster_extra_when_dask_is_missing(monkeypatch, capsys):
 
 def test_a_wrong_or_damaged_dataset_in_data_is_named_once_before_any_run(tmp_path, capsys, tiny_argv):
     """A file in --data that is not what the sweep collects (truncated; another seed; another image
-    size) is named in one line, exit 2, before any run starts. It was one failed run per line, exit 1,
-    and a 16-pixel meta-training set was blamed on the right validation file."""
+    size) is named in one line with the sweep's fix, exit 2, before any run starts, and before a missing
+    file is collected. It was one failed run per line, exit 1, and a 16-pixel meta-training set was
+    blamed on the right validation file."""
     data = tmp_path / "data"
     fig2.ensure_data(TINY, data, workers=1, progress=False)
     paths = fig2.data_paths(TINY, data)
@@ -507,19 +508,22 @@ def test_a_wrong_or_damaged_dataset_in_data_is_named_once_before_any_run(tmp_pat
         return (tmp_path / "other.npz").read_bytes()
     wrong = [("train", good["train"][:len(good["train"]) // 2], "is not a readable .npz dataset (truncated or "
                                                                 "corrupt: File is not a zip file); move it away"),
-             ("validation", collected("validation", 7), "was collected with other settings than this run's "
+             ("validation", collected("validation", 7), "was collected with other settings than this sweep's "
                                                        "validation data: seed 7, not 1"),
              ("train", collected("train", run_data.SEEDS["train"], image_size=16),
               "was collected in another world than this sweep's: image_size 16, not 32")]
     capsys.readouterr()
-    for split, text, says in wrong:
+    for (split, text, says), gone in zip(wrong, ("test", "train", "validation")):
         open(paths[split], "wb").write(text)
+        os.remove(paths[gone])                           # another split's file, not yet collected
         with pytest.raises(SystemExit) as e:
             cli.run(command.main, tiny_argv)
         err = capsys.readouterr().err
         assert e.value.code == 2 and len(err.strip().splitlines()) == 1 and paths[split] in err and says in err, err
+        assert "name another --data" in err and "collecting" not in err and not os.path.exists(paths[gone])
         assert not (tmp_path / "out" / "runs.csv").exists() and not (tmp_path / "w").exists()   # no run started
-        open(paths[split], "wb").write(good[split])
+        for name in (split, gone):
+            open(paths[name], "wb").write(good[name])
     assert command.main(tiny_argv) == 0 and len(sweep_rows.read_rows(tmp_path / "out" / "runs.csv")) == len(plan(TINY))
 
 

@@ -173,30 +173,46 @@ def test_the_gradebook_is_written_through_links_and_never_to_a_device(tmp_path):
 
 
 def test_a_gradebook_replaces_only_a_gradebook(tmp_path, capsys):
-    """--csv and --json may replace what `grade` wrote before, never another file (a README, a dataset),
-    never each other, and never under a submission's name (the next `grade` of its folder would grade
-    it); each refused in one line, exit 2, before any grading, the file untouched."""
+    """--csv and --json may replace what `grade` wrote before (or an empty file, or one a spreadsheet
+    saved with a byte-order mark), never another file (a README, a dataset), never each other, and never
+    under a submission's name (the next `grade` of its folder would grade it); each refused in one line
+    saying why, exit 2, before any grading, the file untouched."""
     graded = [Graded("alice.py", [9], {9: "correct"})]
     for kind, text in (("csv", gradebook.csv_text), ("json", gradebook.json_text)):
         path = tmp_path / f"old.{kind}"
         gradebook.write(str(path), text(graded, [9]))
-        assert gradebook.is_gradebook(str(path), kind) and not gradebook.is_gradebook(str(path), {"csv": "json",
-                                                                                               "json": "csv"}[kind])
+        other = {"csv": "json", "json": "csv"}[kind]
+        assert gradebook.is_gradebook(str(path), kind) and not gradebook.is_gradebook(str(path), other)
+        (tmp_path / "bom").write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+        assert gradebook.is_gradebook(str(tmp_path / "bom"), kind)
+    (tmp_path / "empty").write_bytes(b"")
+    assert all(gradebook.is_gradebook(str(tmp_path / "empty"), kind) for kind in ("csv", "json"))
     (tmp_path / "README.md").write_text("# read me\n")
     (tmp_path / "notes.json").write_text('{"exercises": [9]}')         # JSON, but not what grade writes
     (tmp_path / "class").mkdir()
     (tmp_path / "class" / "alice.py").write_text("x = 1\n")
-    refused = [["--json", str(tmp_path / "README.md")], ["--csv", str(tmp_path / "README.md")],
-               ["--json", str(tmp_path / "notes.json")], ["--csv", str(tmp_path / "old.json")],
-               ["--csv", str(tmp_path / "both"), "--json", str(tmp_path / "both")],
-               ["--csv", str(tmp_path / "class" / "out.py")], ["--json", str(tmp_path / "grades.ipynb")]]
+    not_ours = "exists and is not a gradebook ({}) that grade wrote (this command would replace it)"
+    refused = [(["--json", str(tmp_path / "README.md")], not_ours.format("JSON")),
+               (["--csv", str(tmp_path / "README.md")], not_ours.format("CSV")),
+               (["--json", str(tmp_path / "notes.json")], not_ours.format("JSON")),
+               (["--csv", str(tmp_path / "old.json")], not_ours.format("CSV")),
+               (["--csv", str(tmp_path / "both"), "--json", str(tmp_path / "both")], "--csv and --json both name"),
+               (["--csv", str(tmp_path / "class" / "out.py")], "is named like a submission (.py/.ipynb); name it .csv"),
+               (["--json", str(tmp_path / "grades.ipynb")], "is named like a submission (.py/.ipynb); name it .json")]
     before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
-    for flags in refused:
+    for flags, says in refused:
         with pytest.raises(SystemExit) as e:
             cli.run(cli_main.main, ["grade", str(tmp_path / "class"), *flags])
         said = capsys.readouterr()
         assert e.value.code == 2 and len(said.err.strip().splitlines()) == 1 and said.out == "", (flags, said)
+        assert says in said.err, (flags, said.err)
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+    # what grade wrote, grade replaces
+    for _ in range(2):
+        assert cli_main.main(["grade", str(tmp_path / "class"), "--exercises", "9", "--timeout", "5",
+                              "--csv", str(tmp_path / "empty"), "--json", str(tmp_path / "old.json")]) == 0
+    assert (tmp_path / "empty").read_text().startswith("student,submission,exercise_9,")
+    assert json.loads((tmp_path / "old.json").read_text())["exercises"] == [9]
 
 
 def test_the_gradebooks_columns_for_hand_made_grades():

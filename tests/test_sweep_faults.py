@@ -110,6 +110,8 @@ GOOD = "mil-conv0,9,3,3,0,2,1.0,1,4,0.25,0.05,0.7,{}"
         ('{""0"": ""x"", ""1"": 0}', "is not {colour: successes}, whole numbers"),
         ('{""0"": 1.0, ""1"": 0}', "is not {colour: successes}, whole numbers"),
         ('{""a"": 1, ""1"": 0}', "is not {colour: successes}, whole numbers"),
+        ('{""00"": 1, ""1"": 0}', "is not {colour: successes}, whole numbers"),        # "0" twice, as int() reads it
+        ('{""\u00b2"": 1, ""1"": 0}', "is not {colour: successes}, whole numbers"),     # a digit int() refuses
         ('{}', "is not {colour: successes}, whole numbers"),
         ('[1, 0]', "is not {colour: successes}, whole numbers"))),
     ("", r"runs.csv is empty \(not even runs.csv's header\); delete it to start the sweep afresh"),

@@ -18,7 +18,9 @@ its bytes depend on the content only: the same dataset saved twice, or collected
 of worker processes, is the same file (`npz.write`). `load` checks the file as `npz.Reader` does
 (every .npy header before any array is read), then the format version, keys, dtypes, shapes, the
 metadata the package reads and a SHA-256 checksum of the arrays, and says exactly what is wrong with
-a bad, damaged or truncated file: every failure is a DatasetError naming the file.
+a bad, damaged or truncated file: every failure is a DatasetError naming the file. `read_metadata`
+makes the same checks but for the arrays' contents, without reading them: a moment, for a command to
+refuse a wrong file before its work.
 """
 import contextlib
 import json

@@ -67,12 +67,14 @@ _BEGINS = {"csv": b"student,submission,", "json": b'{\n "exercises": ['}
 
 
 def is_gradebook(path, kind):
-    """May a gradebook of `kind` ("csv" or "json") replace the existing file `path`: did this module
-    write it (it begins as `csv_text` or `json_text` does)? Anything else (a README, a dataset, a
-    notebook) is not ours to overwrite. A device or a FIFO is refused (`files.open_read`)."""
+    """May a gradebook of `kind` ("csv" or "json") replace the existing file `path`: is it empty, or did
+    this module write it (it begins as `csv_text` or `json_text` does, after the byte-order mark a
+    spreadsheet's "CSV UTF-8" adds)? Anything else (a README, a dataset, a notebook) is not ours to
+    overwrite. A device or a FIFO is refused (`files.open_read`)."""
     begins = _BEGINS[kind]
     with files.open_read(path) as f:
-        return f.read(len(begins)) == begins
+        head = f.read(len(begins) + 3)
+    return not head or head.removeprefix(b"\xef\xbb\xbf").startswith(begins)
 
 
 def write(path, text):

@@ -176,8 +176,8 @@ def main(argv=None):
             except (OSError, ValueError) as e:
                 f.error(f"argument --scheduler: no Dask scheduler at {args.scheduler!r} ({e}); start one, or "
                         f"drop --scheduler to run here")
+            check_data(cfg, args.data)         # before collecting the others: one wrong file is said at once
             ensure_data(cfg, args.data, progress=not args.no_progress)
-            check_data(cfg, args.data)
             if args.data_only:
                 print(f"the {cfg.name} profile's datasets are in {args.data}")
                 return 0

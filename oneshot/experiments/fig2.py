@@ -151,17 +151,18 @@ def data_paths(cfg, data_dir):
             for split, (c, d) in cfg.splits().items()}
 
 
-def sweep_world(cfg):
-    """The WorldConfig a sweep collects its datasets in (the split aside): its palette, the rest default."""
-    return WorldConfig(palette=PaletteConfig(mode=cfg.palette_mode))
+def collected_with(cfg):
+    """(WorldConfig, ExpertConfig) a sweep collects its datasets with: its palette, the world's other
+    settings at their defaults (the split is each dataset's), the default profile's DART noise."""
+    return (WorldConfig(palette=PaletteConfig(mode=cfg.palette_mode)),
+            ExpertConfig(action_noise=PROFILES_TRAIN["default"].demo_noise))
 
 
 def ensure_data(cfg, data_dir, workers=None, progress=True):
     """Collect the sweep's datasets if missing (all cores; DART noise 0.1 N m as the default profile's):
     the first `cfg.data` colours x demos of the palette's meta-training split, every run training on the
     first part of it; `cfg.validation` of its validation colours and `cfg.test` of its test colours."""
-    world_cfg = sweep_world(cfg)
-    expert_cfg = ExpertConfig(action_noise=PROFILES_TRAIN["default"].demo_noise)
+    world_cfg, expert_cfg = collected_with(cfg)
     for split, path in data_paths(cfg, data_dir).items():
         c, d = cfg.splits()[split]
         if not os.path.exists(path):

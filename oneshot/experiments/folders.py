@@ -9,7 +9,7 @@ import dataclasses
 import os
 
 from oneshot.data import datasets
-from oneshot.experiments.fig2 import data_paths, plan, run_config, run_context, sweep_world
+from oneshot.experiments.fig2 import collected_with, data_paths, plan, run_config, run_context
 from oneshot.experiments.rows import read_rows, row_id
 from oneshot.tools import files
 from oneshot.training import checkpoint, run_data
@@ -76,17 +76,22 @@ def check_work_data(runs, work_dir, context, done=()):
 
 def check_data(cfg, data_dir):
     """Raise ValueError (one line: the file, what differs, the fix) unless each dataset in `data_dir` is
-    what the sweep `cfg` collects there (`run_data.check`: split, palette, seed, noise, colours x demos;
-    and the world, e.g. the image size), read from its metadata only: a damaged or wrong file is named
-    once, before any run starts, not by each run that loads it."""
+    what the sweep `cfg` collects there (`fig2.collected_with`; `run_data.check`: split, palette, seed,
+    noise, colours x demos; and the world, e.g. the image size), read from its metadata only: a damaged
+    or wrong file is named once, before any is collected or any run starts, not by each run that loads
+    it. A missing file is not checked: the sweep collects it."""
     again = "move it away (this command then collects it again), or name another --data"
+    world, expert = collected_with(cfg)
+    as_collected = dataclasses.replace(run_config(plan(cfg)[0], run_context(cfg, data_dir)),
+                                       demo_noise=expert.action_noise)
     for split, path in data_paths(cfg, data_dir).items():
+        if not os.path.exists(path):
+            continue
         try:
             metadata = datasets.read_metadata(path)
         except datasets.DatasetError as e:              # its fix: collect it as this sweep does
             raise datasets.DatasetError(f"{str(e).removesuffix('; ' + datasets.FIX)}; {again}") from None
-        run_data.check(run_config(plan(cfg)[0], run_context(cfg, data_dir)), split, metadata, path)
-        world = sweep_world(cfg)
+        run_data.check(as_collected, split, metadata, path, "this sweep's", "another --data")
         held = dataclasses.replace(datasets.world_config(metadata, repr(path)), split=world.split)
         differ = [f"{f.name} {getattr(held, f.name)!r}, not {getattr(world, f.name)!r}"
                   for f in dataclasses.fields(world) if getattr(held, f.name) != getattr(world, f.name)]

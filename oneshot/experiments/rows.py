@@ -138,7 +138,7 @@ def _check_per_colour(counts, successes, trials):
     """Raise ValueError unless `counts` (a row's notes' per_colour: {colour index: successes}, what
     `stats.counts` pairs over colours) shares the row's trials equally among its colours, each colour's
     successes within its trials, and sums to the row's successes."""
-    if not (isinstance(counts, dict) and counts and all(k.isdigit() for k in counts)
+    if not (isinstance(counts, dict) and counts and all(k.isdecimal() and k == str(int(k)) for k in counts)
             and all(type(v) is int for v in counts.values())):
         raise ValueError("its notes' per_colour is not {colour: successes}, whole numbers")
     each, rest = divmod(trials, len(counts))

@@ -90,10 +90,11 @@ def missing(cfg, splits, flags=None):
             + " && ".join(collect_command(cfg, s) for s in gone))
 
 
-def check(cfg, split, metadata, path):
+def check(cfg, split, metadata, path, whose="this run's", another="another file"):
     """Raise DataMismatch unless a dataset (its metadata) holds what the profile's `split` asks for: that
     split's colours of the profile's palette, collected with the profile's seed and DART noise, with at
-    least the profile's demos per colour."""
+    least the profile's demos per colour. `whose` and `another` word the message for its caller (a
+    sweep: "this sweep's", "another --data")."""
     _, demos, seed = spec(cfg, split)
     wanted = {"split": split, "palette": cfg.palette, "seed": seed, "noise": cfg.demo_noise}
     held = {"split": metadata.get("split"), "palette": metadata.get("world", {}).get("palette", {}).get("mode"),
@@ -110,8 +111,8 @@ def check(cfg, split, metadata, path):
         if held["split"] not in (split, None):  # another split's file: most likely the wrong file was named
             fix = f"name a {split} dataset instead, or move it away ({collect})"
         else:
-            fix = f"move it away ({collect}), or name another file"
-        raise DataMismatch(f"{path} was collected with other settings than this run's {split} data: "
+            fix = f"move it away ({collect}), or name {another}"
+        raise DataMismatch(f"{path} was collected with other settings than {whose} {split} data: "
                            f"{'; '.join(differ)}; {fix}")
 
 
