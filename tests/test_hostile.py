@@ -184,6 +184,20 @@ def test_train_counts_the_activations_of_a_meta_batch_not_only_its_images(capsys
     nothing_written(tmp_path)
 
 
+def test_train_counts_each_tasks_copies_of_the_parameters_it_adapts(capsys, tmp_path, monkeypatch):
+    """One dense layer of 200,000 on the smoke profile (every parameter adapts, 3 steps): its parameters
+    (2.1 GB with Adam's moments) and the activations fit in 8 GB, but each task's copies of the adapted
+    parameters do not (a layer of 1,000,000 passed both checks and the kernel killed it at 20.8 GB)."""
+    monkeypatch.setattr(cli, "available_memory_bytes", lambda: 8 * 10 ** 9)
+    monkeypatch.setattr(train, "train", lambda *a, **k: pytest.fail("train.main did not refuse before training"))
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), "--hidden", "200000",
+                                           "--train-data", str(tmp_path / "train.npz"),
+                                           "--validation-data", str(tmp_path / "heldout.npz")])
+    assert "a meta-batch of 2 tasks" in line and "each task's copies of the 129,830,002 numbers eq. (1) adapts" in line
+    assert "adapt fewer parameters (--inner-params) of a smaller network" in line
+    nothing_written(tmp_path)
+
+
 def test_train_names_the_flag_of_a_bad_inner_loop_value(capsys, tmp_path):
     """It said "loss_scale must be finite and > 0", the field's name, not the flag a person typed."""
     line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"),

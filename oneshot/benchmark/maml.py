@@ -47,9 +47,11 @@ def bench_setup(profile, image_size, T=20, **overrides):
                      f"{method.parameter_count(net_cfg):,} parameters and what a meta-iteration keeps of them",
                      "use a smaller --lstm-units")
     tasks = method.cfg.meta_batch
-    cli.check_memory(tasks * method.task_bytes(net_cfg, T),
+    cli.check_memory(method.memory_bytes(net_cfg) + tasks * method.task_bytes(net_cfg, T),
                      f"a meta-batch of {tasks} tasks ({method.cfg.inner_steps} inner steps: their images and the "
-                     f"activations the meta-gradient keeps)", "use a smaller --meta-batch or fewer --inner-steps")
+                     f"activations the meta-gradient keeps, each task's copies of the parameters eq. (1) adapts, "
+                     f"beside the parameters)", "use a smaller --meta-batch or fewer --inner-steps, or "
+                                                "--inner-params conv0")
     return method, net_cfg, method.init_params(net_cfg, rng), rng
 
 

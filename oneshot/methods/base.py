@@ -57,20 +57,29 @@ class Method:
         parameters, their gradient, Adam's two moments and (cfg.ema > 0) the moving average."""
         return 4 * self.parameter_count(net_cfg) * (4 + (self.cfg.ema > 0))
 
+    def adapted_floats(self, net_cfg):
+        """How many numbers eq. (1) adapts, of which each task of a meta-batch holds its own copies: none."""
+        return 0
+
     def task_bytes(self, net_cfg, frames):
         """Bytes one task of a meta-batch holds during a meta-iteration, at most about: the float32 images
-        of its two demonstrations, and for each forward pass through its `frames` frames (one, or with
-        eq. (1) one per inner step and one after) the activations it keeps for the gradient
+        of its two demonstrations; for each forward pass through its `frames` frames (one, or with eq. (1)
+        one per inner step and one after) the activations it keeps for the gradient
         (`network.activation_floats`, float32), with the backward pass and autograd's bookkeeping as much
-        again and more: 10 bytes a number. Measured, as the slope of peak memory from meta-batch 4 to 16
-        (`python -m oneshot.benchmark maml --shards 1 --meta-batch N --profile P` or `--line L`), against
-        this: the smoke profile (3 steps) 21 MB a task (43), the default (1 step) 10 MB (22),
-        `mil-released+widths-flat+3steps` 28 MB (34), the LSTM 8.0 MB (11).
-        `train` refuses a meta-batch that would not fit (one of 1,000 had grown to 21 GB when the kernel
-        killed it)."""
+        again and more: 10 bytes a number; and its own copies of the parameters eq. (1) adapts
+        (`adapted_floats`), 4 + 2 per inner step (the step's gradient and result, kept for the
+        second-order backward pass, and what that pass makes of them). Measured, as the slope of peak
+        memory from meta-batch 4 to 16 (`python -m oneshot.benchmark maml --shards 1 --meta-batch N
+        --profile P` or `--line L`), against this: the smoke profile (3 steps) 21 MB a task (45), the
+        default (1 step) 10 MB (21), `mil-released+widths-flat+3steps` 28 MB (35), the LSTM 8.0 MB (11);
+        with one dense layer of 20,000 and every parameter adapting, where the copies are most of it
+        (`tests/test_methods.py`), 262 MB (326) with one step and 381 MB (552) with three. `train` refuses
+        a meta-batch that would not fit (one of 1,000 had grown to 21 GB when the kernel killed it, and so
+        did a dense layer of 1,000,000 adapting, which the copies now count)."""
         passes = self.cfg.inner_steps + 1 if self.adapts else 1
         images = 2 * frames * net_cfg.image_size ** 2 * net_cfg.image_channels * 4
-        return images + int(10 * network.activation_floats(net_cfg) * frames * passes)
+        copies = 4 * self.adapted_floats(net_cfg) * (4 + 2 * self.cfg.inner_steps)
+        return images + int(10 * network.activation_floats(net_cfg) * frames * passes) + copies
 
     # --- meta-training ------------------------------------------------------------------------------
 

@@ -63,6 +63,11 @@ class MIL(Method):
         steps = inner.adapted_keys(shapes, self.inner.only, self.inner.frozen) if self.cfg.learn_alpha else []
         return super().parameter_count(net_cfg) + sum(int(np.prod(shapes[k])) for k in steps)
 
+    def adapted_floats(self, net_cfg):
+        """How many numbers eq. (1) adapts (`inner.adapted_keys` of its InnerLoop), counted from shapes."""
+        shapes = network.param_shapes(net_cfg)
+        return sum(int(np.prod(shapes[k])) for k in inner.adapted_keys(shapes, self.inner.only, self.inner.frozen))
+
     @property
     def shards(self):
         return self.cfg.shards
