@@ -14,7 +14,8 @@ each function of the network (`oneshot.policy.conv`, `.affine`, `.layers`, `.nor
     other_layer_primitives bias, ReLU and its mask, concatenation, layer norm, eq. (1)'s step
     autograd_python        the rest of the wall time: autograd's tape (boxing, nodes, the backward pass's
                            order and sums of gradients) and NumPy's small operations (loss, reshapes,
-                           feature points)
+                           feature points); below zero when the parts, timed under cProfile, outran
+                           the plain runs (other work on the cores): then "note" says it is not measured
 
 With shards > 1, the whole meta-iteration also runs on its processes, and the training process's time
 inside the exchanges (`shards.allreduce` and the final sum, waiting for the others included) is
@@ -106,6 +107,10 @@ def bench_breakdown(iterations=10, profile="default", T=20, image_size=32, rollo
               "inner_params": cfg.inner_params, "first_order": cfg.first_order, "part_ms": round(wall, 1)}
     result.update({k + "_ms": round(v, 1) for k, v in ms.items()})
     result["autograd_python_ms"] = round(wall - sum(ms.values()), 1)
+    if result["autograd_python_ms"] < 0:                  # the parts, timed under cProfile, outran the plain runs
+        result["note"] = ("the profiled parts took longer than the plain runs (cProfile's overhead, or other work "
+                          "on the cores): autograd_python_ms is not measured here; time it on idle cores, with "
+                          "more --iterations")
     if method.shards > 1:
         result.update(_exchanges(method, params, rng, T, image_size, iterations))
     result.update(_rollouts(method, params, net_cfg, batch[0], rollouts))
