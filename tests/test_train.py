@@ -47,6 +47,19 @@ def test_a_fresh_run_refuses_validation_data_of_another_world(tiny, tmp_path, wo
     assert not (tmp_path / "run" / "checkpoint.npz").exists()
 
 
+def test_a_dataset_of_fewer_colours_than_the_profile_collects_is_used_and_said(tiny, tmp_path, capsys):
+    """A small or stale file at a profile's path (3 of the hues palette's 36 meta-training colours, 2 of
+    its 12 validation colours) trained silently on what it held; a note now says so, and how to collect
+    the whole set. Asking for the first `tasks` colours says nothing of the meta-training set."""
+    run_data.ensure(tiny)
+    err = capsys.readouterr().err
+    assert f"note: {tiny.train_data} holds 3 of the 36 train colours this profile collects; the run uses those 3 " \
+           f"(the whole set: move it away, or python -m oneshot.collect --out {tiny.train_data} --split train --tasks 36" in err
+    assert f"note: {tiny.validation_data} holds 2 of the 12 validation colours" in err
+    run_data.ensure(dataclasses.replace(tiny, tasks=2))
+    assert "train colours" not in capsys.readouterr().err
+
+
 def test_a_resume_with_another_config_is_refused_before_any_data_is_collected(tiny, tmp_path):
     run_folder.train(dataclasses.replace(tiny, iterations=2), tmp_path / "run", progress=False)
     other = dataclasses.replace(tiny, iterations=4, meta_batch=3, train_data=str(tmp_path / "missing.npz"))

@@ -127,7 +127,8 @@ def load(cfg, split):
 def ensure(cfg, splits=("train", "validation"), progress=True):
     """[the dataset of each split] of a TrainConfig, loaded and checked, each collected first if missing
     (`collected_size`: every colour of its split, 36 and 12 in the hues palette, or what a Figure 2 file
-    name says)."""
+    name says). A file of fewer colours than that is used, and a note on stderr says so (but for the
+    meta-training set of a config that asks for its first `tasks` colours)."""
     out = []
     for split in splits:
         path, _, seed = spec(cfg, split)
@@ -140,6 +141,10 @@ def ensure(cfg, splits=("train", "validation"), progress=True):
                                           expert_cfg=ExpertConfig(action_noise=cfg.demo_noise))
             datasets.save(data, path)
         out.append(load(cfg, split))
+        held, whole = out[-1]["metadata"]["n_tasks"], collected_size(cfg, split)[0]
+        if held < whole and not (split == "train" and cfg.tasks):     # a small or stale file: said, not refused
+            print(f"note: {path} holds {held} of the {whole} {split} colours this profile collects; the run "
+                  f"uses those {held} (the whole set: move it away, or {collect_command(cfg, split)})", file=sys.stderr)
     return out
 
 
