@@ -96,6 +96,11 @@ def main(argv=None):
     if os.path.realpath(data["train"]) == os.path.realpath(data["validation"]):
         p.error(f"the validation data {data['validation']} is also the meta-training data; the validation colours "
                 f"need a file of their own (--validation-data)")
+    test = run_data.spec(cfg, "test")[0]                  # recorded for `evaluate --split test`, not read here
+    for split, path in data.items():
+        if test and os.path.realpath(test) == os.path.realpath(path):
+            p.error(f"the test data {test} is also the {split} data; the test colours need a file of their own "
+                    f"(--test-data)")
     for split, path in data.items():         # the run writes these: a dataset there would be overwritten
         if os.path.realpath(path) in {os.path.realpath(os.path.join(run, name)) for name in RUN_FILES}:
             p.error(f"the {split} data {path} is one of the run's own files in {run}; keep datasets outside "

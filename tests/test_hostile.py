@@ -245,16 +245,21 @@ def test_train_refuses_a_never_adapt_prefix_that_names_no_parameter(capsys, tmp_
     assert checkpoint.load(tmp_path / "c.npz")["config"].never_adapt == ("ln",)
 
 
-@pytest.mark.parametrize("where", ["the validation data", "the run's log"])
+@pytest.mark.parametrize("where", ["the validation data", "the run's log", "the test data", "the test data too"])
 def test_train_refuses_a_dataset_path_it_would_overwrite_or_reuse(capsys, tmp_path, where):
-    """The same file for meta-training and validation, or a dataset at one of the run's own files: refused
-    before any demonstration is collected."""
+    """The same file for meta-training and validation (or test), or a dataset at one of the run's own
+    files: refused before any demonstration is collected."""
     run = tmp_path / "run"
-    train_data = tmp_path / "same.npz" if where == "the validation data" else run / "log.jsonl"
+    train_data = run / "log.jsonl" if where == "the run's log" else tmp_path / "same.npz"
+    validation_data = tmp_path / ("same.npz" if where == "the validation data" else "heldout.npz")
+    test_data = {"the test data": train_data, "the test data too": validation_data}.get(where, tmp_path / "test.npz")
     line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(run), "--train-data", str(train_data),
-                                           "--validation-data", str(tmp_path / "same.npz")])
-    assert ("is also the meta-training data" if where == "the validation data" else
-            f"the train data {train_data} is one of the run's own files") in line
+                                           "--validation-data", str(validation_data), "--test-data", str(test_data)])
+    assert {"the validation data": "is also the meta-training data",
+            "the run's log": f"the train data {train_data} is one of the run's own files",
+            "the test data": f"the test data {test_data} is also the train data; the test colours need a file of "
+                             f"their own (--test-data)",
+            "the test data too": f"the test data {test_data} is also the validation data"}[where] in line
     nothing_written(tmp_path)
 
 
