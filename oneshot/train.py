@@ -81,6 +81,10 @@ def main(argv=None):
         method = methods.of(cfg)
     except ValueError as e:                    # its inner loop's fields, as the flags that set them
         p.error(f"{e} (the flags: --alpha >= 0, --inner-steps >= 0, --inner-clip >= 0, --inner-loss-scale > 0)")
+    try:
+        method.refuse_ignored(overrides)         # a flag the method never reads: recorded, and nothing done
+    except ValueError as e:
+        p.error(str(e))
     # Before any work: what must fit in memory (the datasets to collect, a meta-batch's images) and
     # how many processes share the frames. Frames and image size: the training set's, if it exists.
     world = WorldConfig(palette=PaletteConfig(mode=cfg.palette))

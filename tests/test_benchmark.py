@@ -70,7 +70,12 @@ def test_maml_times_a_figure_2_line_as_its_sweep_trains_it():
     for argv, message in ((["--profile", "released", "--line", line], "not allowed with argument --profile"),
                           (["--line", "random"], "argument --line: invalid choice: 'random'"),
                           (["--line", line, "--method", "lstm"], f"the line {line} names its method; drop --method"),
-                          (["--line", "lstm", "--breakdown"], "not the lstm baseline's: time a profile or a line of MIL")):
+                          (["--line", "lstm", "--breakdown"], "not the lstm baseline's: time a profile or a line of MIL"),
+                          # a flag its method never reads: it was timed as if it did something
+                          (["--method", "lstm", "--first-order"], "--first-order does not apply to the lstm method"),
+                          (["--lstm-units", "8"], "--lstm-units does not apply to the mil method"),
+                          (["--method", "contextual", "--inner-steps", "3", "--inner-params", "all"],
+                           "--inner-steps, --inner-params do not apply to the contextual method")):
         out = subprocess.run([sys.executable, "-m", "oneshot.benchmark", "maml", *argv], capture_output=True, text=True)
         assert out.returncode == 2 and message in out.stderr
 

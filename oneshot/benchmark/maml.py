@@ -40,6 +40,7 @@ def bench_setup(profile, image_size, T=20, **overrides):
     """(method, net_cfg, params, rng) for timing a profile or line (`timed_config`, with overridden fields)
     on synthetic data of T frames; ValueError if its meta-iteration would not fit in memory."""
     method = methods.of(dataclasses.replace(timed_config(profile), **overrides))
+    method.refuse_ignored(overrides)           # --inner-steps for the LSTM would be timed and do nothing
     rng = np.random.default_rng(0)
     net_cfg = method.network_config(image_size)
     method.check(net_cfg)

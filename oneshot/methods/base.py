@@ -18,6 +18,11 @@ from oneshot.policy import network
 from oneshot.policy.network import NetworkConfig
 
 
+# The TrainConfig fields of eq. (1): only a method that adapts reads them.
+INNER_LOOP_FIELDS = ("alpha", "inner_steps", "first_order", "inner_params", "never_adapt", "inner_clip",
+                     "inner_loss_scale", "learn_alpha")
+
+
 class Method:
     """A method of the comparison, bound to `cfg` (a `training.config.TrainConfig`). The defaults are
     those of a method that learns by gradient on the shared trunk of `oneshot.policy.network`."""
@@ -26,6 +31,7 @@ class Method:
     adapts = False        # does one demonstration change the parameters (eq. 1)? Then `unadapted` exists
     learns = True         # trained by meta-gradient; False: `fit` chooses its parameters instead
     has_network = True    # are its parameters a network's (checked against `network.param_shapes`)?
+    ignores = (*INNER_LOOP_FIELDS, "lstm_units")     # TrainConfig fields it never reads (`refuse_ignored`)
 
     def __init__(self, cfg):
         self.cfg = cfg
@@ -47,6 +53,16 @@ class Method:
 
     def check(self, net_cfg):
         """Raise ValueError if the config and the network cannot belong together (read checkpoints)."""
+
+    def refuse_ignored(self, fields):
+        """Raise ValueError if a person set one of `fields` (TrainConfig names, from command-line flags)
+        that this method never reads: `--inner-steps 5` for the LSTM would be recorded and do nothing."""
+        ignored = [f for f in fields if f in self.ignores]
+        if ignored:
+            flags = ", ".join("--" + f.replace("_", "-") for f in ignored)
+            raise ValueError(f"{flags} {'does' if len(ignored) == 1 else 'do'} not apply to the {self.cfg.method} "
+                             f"method (it never reads {'it' if len(ignored) == 1 else 'them'}); drop "
+                             f"{'it' if len(ignored) == 1 else 'them'}, or name another --method")
 
     def parameter_count(self, net_cfg):
         """How many numbers its parameters hold, counted from their shapes (nothing is allocated)."""

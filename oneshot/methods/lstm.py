@@ -12,7 +12,7 @@ import autograd.numpy as anp
 import numpy as np
 
 from oneshot.maml import batched
-from oneshot.methods.base import Method
+from oneshot.methods.base import INNER_LOOP_FIELDS, Method
 from oneshot.policy import inputs, network
 from oneshot.policy.layers import add_bias, concat_last, matmul, tanh
 from oneshot.policy.network import head, init_params, trunk
@@ -104,6 +104,7 @@ class LSTM(Method):
     """The LSTM baseline: it reads the demonstration, then acts; `cfg.lstm_units` wide."""
 
     name = "lstm"
+    ignores = INNER_LOOP_FIELDS
 
     def network_config(self, image_size):
         return lstm_network_config(super().network_config(image_size), self.cfg.lstm_units)

@@ -45,6 +45,7 @@ class MIL(Method):
 
     name = "mil"
     adapts = True
+    ignores = ("lstm_units",)
 
     def __init__(self, cfg):
         super().__init__(cfg)
