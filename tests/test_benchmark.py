@@ -75,7 +75,8 @@ def test_maml_times_a_figure_2_line_as_its_sweep_trains_it():
                           (["--method", "lstm", "--first-order"], "--first-order does not apply to the lstm method"),
                           (["--lstm-units", "8"], "--lstm-units does not apply to the mil method"),
                           (["--method", "contextual", "--inner-steps", "3", "--inner-params", "all"],
-                           "--inner-steps, --inner-params do not apply to the contextual method")):
+                           "--inner-steps, --inner-params do not apply to the contextual method"),
+                          (["--blas-threads", "99999"], "argument --blas-threads: expected 1 to")):      # was recorded
         out = subprocess.run([sys.executable, "-m", "oneshot.benchmark", "maml", *argv], capture_output=True, text=True)
         assert out.returncode == 2 and message in out.stderr
 

@@ -34,6 +34,15 @@ from oneshot.benchmark.maml import bench_meta_iteration
 from oneshot.benchmark.privileged import bench_privileged
 
 
+def _threads(text):
+    """An argparse type: BLAS threads, 1 to this machine's cores (more would be recorded, not run)."""
+    cores = os.cpu_count() or 1
+    value = cli.positive_int(text)
+    if value > cores:
+        raise argparse.ArgumentTypeError(f"expected 1 to {cores} (this machine's cores); got {text!r}")
+    return value
+
+
 def main(argv=None):
     p = cli.Parser(prog="python -m oneshot.benchmark", description=__doc__,
                    formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -67,9 +76,9 @@ def main(argv=None):
     m.add_argument("--shards", type=cli.positive_int, default=None,
                    help="override the profile's (line's) shards (processes sharing each meta-gradient; "
                         "1 = one process)")
-    m.add_argument("--blas-threads", type=cli.positive_int, default=None,
-                   help="BLAS threads of the training process (default 1, as training keeps; more to see what "
-                        "they would buy)")
+    m.add_argument("--blas-threads", type=_threads, default=None,
+                   help="BLAS threads of the training process (default 1, as training keeps; more, up to the "
+                        "cores, to see what they would buy)")
     m.add_argument("--peer", choices=sorted(peers.PEERS), default=None,
                    help="time the same second-order meta-gradient in PyTorch or JAX instead of ours, on all the "
                         "cores (pip install -e .[peers]); run it and ours alternately to compare")
