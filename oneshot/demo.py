@@ -210,15 +210,16 @@ def main(argv=None):
                                                for j in range(args.trials)]
                                               for i in range(len(demos))]) for k in (0, 1))   # (colours, trials)
     shown = shown_trials(outcomes == "reached", SHOWN_COLOURS)
-    strip = os.path.join(args.out, "one_shot.png")
+    strip, gif = os.path.join(args.out, "one_shot.png"), os.path.join(args.out, "one_shot_trial.gif")
     demo_list = list(demos.values())
-    viz.save_atomically(film_strip(world.config, [(demo_list[i], trials[i, j][0]) for i, j in shown]), strip)
-    failures = sum(not trials[i, j][0]["success"] for i, j in shown)
+    i, j = contrast_trial(outcomes, unadapted_outcomes)
+    pictures = (film_strip(world.config, [(demo_list[a], trials[a, b][0]) for a, b in shown]),
+                animation(world.config, demo_list[i], *trials[i, j]))   # both drawn before either is written:
+    viz.save_atomically(pictures[0], strip)                              # a Ctrl-C while drawing leaves
+    viz.save_gif(pictures[1], gif)                                       # neither new beside an old one
+    failures = sum(not trials[a, b][0]["success"] for a, b in shown)
     print(f"wrote {strip} (each demo above the adapted policy's trial in a new scene; "
           f"{len(shown) - failures} reached, {failures} missed)")
-    i, j = contrast_trial(outcomes, unadapted_outcomes)
-    gif = os.path.join(args.out, "one_shot_trial.gif")
-    viz.save_gif(animation(world.config, demo_list[i], *trials[i, j]), gif)
     name = palette.colour_name(list(demos)[i], world.config.palette)
     print(f"wrote {gif} ({name}, trial {j + 1} of {args.trials}: the demo, and the policy before and after "
           f"adapting in the same new scene)")
