@@ -9,6 +9,7 @@ import os
 import time
 
 import numpy as np
+from tqdm import tqdm
 
 from oneshot.benchmark import peers
 from oneshot import methods
@@ -97,7 +98,7 @@ def bench_meta_iteration(iterations=20, profile="default", T=20, image_size=32, 
         pool = method.make_pool()
     times = []
     try:
-        for _ in range(iterations + 2):
+        for _ in tqdm(range(iterations + 2), desc="meta-iterations (2 to warm up)", leave=False):
             a, e = synthetic_demos(rng, B, T, image_size), synthetic_demos(rng, B, T, image_size)
             t = time.perf_counter()
             step(a, e)
