@@ -213,10 +213,9 @@ def main(argv=None):
     strip, gif = os.path.join(args.out, "one_shot.png"), os.path.join(args.out, "one_shot_trial.gif")
     demo_list = list(demos.values())
     i, j = contrast_trial(outcomes, unadapted_outcomes)
-    pictures = (film_strip(world.config, [(demo_list[a], trials[a, b][0]) for a, b in shown]),
-                animation(world.config, demo_list[i], *trials[i, j]))   # both drawn before either is written:
-    viz.save_atomically(pictures[0], strip)                              # a Ctrl-C while drawing leaves
-    viz.save_gif(pictures[1], gif)                                       # neither new beside an old one
+    viz.save_together({                        # both drawn and encoded before either is written: a Ctrl-C
+        strip: viz.encoded(film_strip(world.config, [(demo_list[a], trials[a, b][0]) for a, b in shown]), strip),
+        gif: viz.gif_encoded(animation(world.config, demo_list[i], *trials[i, j]))})   # leaves neither new
     failures = sum(not trials[a, b][0]["success"] for a, b in shown)
     print(f"wrote {strip} (each demo above the adapted policy's trial in a new scene; "
           f"{len(shown) - failures} reached, {failures} missed)")

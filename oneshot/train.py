@@ -131,13 +131,12 @@ def main(argv=None):
         cli.check_memory(method.memory_bytes(net_cfg),
                          f"the {cfg.method} policy's {method.parameter_count(net_cfg):,} parameters (with their "
                          f"gradient, Adam's moments and the moving average)",
-                         "use smaller --channels, --hidden, --bias-transform or --lstm-units")
+                         f"use smaller {', '.join(method.width_flags[:-1])} or {method.width_flags[-1]}")
+        holds, less = method.meta_batch_words(net_cfg)
         cli.check_memory(method.memory_bytes(net_cfg) + cfg.meta_batch * method.task_bytes(net_cfg, frames),
-                         f"a meta-batch of {cfg.meta_batch} tasks ({cfg.inner_steps} inner steps: their {frames}-frame "
-                         f"images and the activations the meta-gradient keeps, each task's copies of the "
-                         f"{method.adapted_floats(net_cfg):,} numbers eq. (1) adapts, beside the parameters)",
-                         f"use a smaller --meta-batch (the profile's: {PROFILES[profile].meta_batch}) or fewer "
-                         f"--inner-steps, or adapt fewer parameters (--inner-params) of a smaller network")
+                         f"a meta-batch of {cfg.meta_batch} tasks ({holds}; {frames} frames a demo), beside the "
+                         f"parameters", f"use a smaller --meta-batch (the profile's: {PROFILES[profile].meta_batch})"
+                         f"{less}, or a smaller network")
     except ValueError as e:
         p.error(str(e))
     if method.shards > frames:

@@ -167,6 +167,19 @@ def test_train_refuses_a_meta_batch_larger_than_memory(capsys, tmp_path):
     nothing_written(tmp_path)                                     # no dataset collected either
 
 
+def test_a_baselines_meta_batch_refusal_offers_no_flag_of_eq_1(capsys, tmp_path, monkeypatch):
+    """The LSTM's meta-batch that does not fit: the fix is the meta-batch or the network, not --inner-steps
+    or --inner-params, which the LSTM refuses (`Method.ignores`)."""
+    monkeypatch.setattr(cli, "available_memory_bytes", lambda: 10 ** 8)
+    line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), "--method", "lstm",
+                                           "--meta-batch", "1000", "--train-data", str(tmp_path / "train.npz"),
+                                           "--validation-data", str(tmp_path / "heldout.npz")])
+    assert "a meta-batch of 1000 tasks (their images and the activations the meta-gradient keeps; 20 frames" in line
+    assert line.endswith("use a smaller --meta-batch (the profile's: 2), or a smaller network (see python -m "
+                         "oneshot.train --help)") and "inner" not in line
+    nothing_written(tmp_path)
+
+
 @pytest.mark.parametrize("flag, value", [("--meta-batch", "1000"), ("--inner-steps", "100000")])
 def test_train_counts_the_activations_of_a_meta_batch_not_only_its_images(capsys, tmp_path, monkeypatch, flag, value):
     """The smoke profile's meta-batch of 1,000 holds 491 MB of images and about 21 GB of activations: it
@@ -194,7 +207,7 @@ def test_train_counts_each_tasks_copies_of_the_parameters_it_adapts(capsys, tmp_
                                            "--train-data", str(tmp_path / "train.npz"),
                                            "--validation-data", str(tmp_path / "heldout.npz")])
     assert "a meta-batch of 2 tasks" in line and "each task's copies of the 129,830,002 numbers eq. (1) adapts" in line
-    assert "adapt fewer parameters (--inner-params) of a smaller network" in line
+    assert "adapt fewer parameters (--inner-params), or a smaller network" in line
     nothing_written(tmp_path)
 
 
@@ -226,7 +239,8 @@ def test_train_names_the_flag_of_a_bad_inner_loop_value(capsys, tmp_path):
 def test_the_benchmark_counts_the_activations_of_a_meta_batch_before_timing(capsys, monkeypatch, extra):
     monkeypatch.setattr(cli, "available_memory_bytes", lambda: 8 * 10 ** 9)
     line, _ = refused(capsys, benchmark.main, ["maml", "--profile", "smoke", "--meta-batch", "1000", *extra])
-    assert "a meta-batch of 1000 tasks (3 inner steps: their images and the activations" in line
+    assert "a meta-batch of 1000 tasks (3 inner steps: their images, the activations the meta-gradient keeps and each " \
+        "task's copies" in line
     assert "8.0 GB is available; use a smaller --meta-batch or fewer --inner-steps" in line
 
 
@@ -241,6 +255,7 @@ def test_train_refuses_a_network_larger_than_memory(capsys, tmp_path, argv, says
                                            "--train-data", str(tmp_path / "train.npz"),
                                            "--validation-data", str(tmp_path / "heldout.npz")])
     assert says in line and "B of memory, and" in line and "use smaller --channels, --hidden" in line
+    assert ("--lstm-units" in line) == ("lstm" in argv)              # a flag MIL would refuse is not offered
     nothing_written(tmp_path)
 
 

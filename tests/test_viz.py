@@ -317,16 +317,17 @@ def test_the_demo_adapts_each_colour_on_its_own_demo_and_counts_and_shows_what_i
     assert titles[1].endswith(demo.outcome(before)) and titles[2].endswith(demo.outcome(after))
 
 
-def test_a_demo_interrupted_while_drawing_leaves_both_pictures_as_they_were(tmp_path, monkeypatch):
-    """one_shot.png and one_shot_trial.gif are drawn before either is written: a Ctrl-C while the
-    animation was drawn left a new film strip beside the last run's animation."""
+@pytest.mark.parametrize("stage", ["animation", "gif_encoded"])
+def test_a_demo_interrupted_while_drawing_leaves_both_pictures_as_they_were(tmp_path, monkeypatch, stage):
+    """one_shot.png and one_shot_trial.gif are drawn and encoded before either is written: a Ctrl-C while
+    the animation was drawn (or encoded) left a new film strip beside the last run's animation."""
     old = {name: f"an earlier run's {name}".encode() for name in ("one_shot.png", "one_shot_trial.gif")}
     for name, data in old.items():
         (tmp_path / name).write_bytes(data)
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
-    monkeypatch.setattr(demo, "animation", interrupted)
+    monkeypatch.setattr(demo if stage == "animation" else viz, stage, interrupted)
     with pytest.raises(KeyboardInterrupt):
         demo.main(["--out", str(tmp_path), "--trials", "1", "--seed", "1"])
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == old

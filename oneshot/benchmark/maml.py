@@ -47,13 +47,12 @@ def bench_setup(profile, image_size, T=20, **overrides):
     method.check(net_cfg)
     cli.check_memory(method.memory_bytes(net_cfg), f"the {method.cfg.method} policy's "
                      f"{method.parameter_count(net_cfg):,} parameters and what a meta-iteration keeps of them",
-                     "use a smaller --lstm-units")
+                     "use a smaller --lstm-units" if "--lstm-units" in method.width_flags else
+                     "time a smaller profile or line")
     tasks = method.cfg.meta_batch
+    holds, less = method.meta_batch_words(net_cfg)
     cli.check_memory(method.memory_bytes(net_cfg) + tasks * method.task_bytes(net_cfg, T),
-                     f"a meta-batch of {tasks} tasks ({method.cfg.inner_steps} inner steps: their images and the "
-                     f"activations the meta-gradient keeps, each task's copies of the parameters eq. (1) adapts, "
-                     f"beside the parameters)", "use a smaller --meta-batch or fewer --inner-steps, or "
-                                                "--inner-params conv0")
+                     f"a meta-batch of {tasks} tasks ({holds}), beside the parameters", f"use a smaller --meta-batch{less}")
     return method, net_cfg, method.init_params(net_cfg, rng), rng
 
 

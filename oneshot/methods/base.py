@@ -32,6 +32,7 @@ class Method:
     learns = True         # trained by meta-gradient; False: `fit` chooses its parameters instead
     has_network = True    # are its parameters a network's (checked against `network.param_shapes`)?
     ignores = (*INNER_LOOP_FIELDS, "lstm_units")     # TrainConfig fields it never reads (`refuse_ignored`)
+    width_flags = ("--channels", "--hidden", "--bias-transform")    # `train`'s flags that size its network
 
     def __init__(self, cfg):
         self.cfg = cfg
@@ -76,6 +77,14 @@ class Method:
     def adapted_floats(self, net_cfg):
         """How many numbers eq. (1) adapts, of which each task of a meta-batch holds its own copies: none."""
         return 0
+
+    def meta_batch_words(self, net_cfg):
+        """(what a task of its meta-batch holds, how to need less), for a command's memory refusal."""
+        if not self.adapts:
+            return "their images and the activations the meta-gradient keeps", ""
+        return (f"{self.cfg.inner_steps} inner steps: their images, the activations the meta-gradient keeps and "
+                f"each task's copies of the {self.adapted_floats(net_cfg):,} numbers eq. (1) adapts",
+                " or fewer --inner-steps, or adapt fewer parameters (--inner-params)")
 
     def task_bytes(self, net_cfg, frames):
         """Bytes one task of a meta-batch holds during a meta-iteration, at most about: the float32 images

@@ -105,6 +105,7 @@ class LSTM(Method):
 
     name = "lstm"
     ignores = INNER_LOOP_FIELDS
+    width_flags = (*Method.width_flags, "--lstm-units")
 
     def network_config(self, image_size):
         return lstm_network_config(super().network_config(image_size), self.cfg.lstm_units)

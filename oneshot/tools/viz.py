@@ -9,6 +9,7 @@ Positions are in frame pixels, as `oneshot.world.render.world_to_pixels` gives t
 computes them all for recorded episodes. Every function here takes arrays and returns new PIL images;
 only the `save_*` functions write files.
 """
+import io
 import os
 
 import numpy as np
@@ -217,14 +218,33 @@ def hue_wheel(cfg=palette.PaletteConfig(), size=360):
     return image
 
 
+def encoded(image, path, **kwargs):
+    """A PIL image's bytes in the format of `path`'s extension (.png, .gif, .jpg)."""
+    out = io.BytesIO()
+    image.save(out, format=os.path.splitext(path)[1][1:].upper().replace("JPG", "JPEG"), **kwargs)
+    return out.getvalue()
+
+
+def gif_encoded(images, ms_per_frame=150, hold_last_ms=1500):
+    """An animated GIF's bytes, of PIL images (e.g. `side_by_side`'s), looping; the last one stays up
+    `hold_last_ms` so the outcome can be seen."""
+    durations = [ms_per_frame] * (len(images) - 1) + [hold_last_ms]
+    return encoded(images[0], "animation.gif", save_all=True, append_images=images[1:], duration=durations, loop=0)
+
+
 def save_atomically(image, path, **kwargs):
     """Save a PIL image via a temporary file and a rename, so no half-written picture is left."""
-    with atomic_write(path) as f:
-        image.save(f, format=os.path.splitext(path)[1][1:].upper().replace("JPG", "JPEG"), **kwargs)
+    save_together({path: encoded(image, path, **kwargs)})
 
 
 def save_gif(images, path, ms_per_frame=150, hold_last_ms=1500):
-    """An animated GIF of PIL images (e.g. `side_by_side`'s), looping; the last one stays up
-    `hold_last_ms` so the outcome can be seen."""
-    durations = [ms_per_frame] * (len(images) - 1) + [hold_last_ms]
-    save_atomically(images[0], path, save_all=True, append_images=images[1:], duration=durations, loop=0)
+    """An animated GIF of PIL images (`gif_encoded`), saved atomically."""
+    save_together({path: gif_encoded(images, ms_per_frame, hold_last_ms)})
+
+
+def save_together(encodings):
+    """Write {path: bytes} (`encoded`, `gif_encoded`), each file atomically: pictures encoded before any
+    is written, so an interruption while encoding leaves every file as it was."""
+    for path, data in encodings.items():
+        with atomic_write(path) as f:
+            f.write(data)

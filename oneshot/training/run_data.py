@@ -141,7 +141,7 @@ def ensure(cfg, splits=("train", "validation"), progress=True):
                                           expert_cfg=ExpertConfig(action_noise=cfg.demo_noise))
             datasets.save(data, path)
         out.append(load(cfg, split))
-        held, whole = out[-1]["metadata"]["n_tasks"], collected_size(cfg, split)[0]
+        held, whole = len(out[-1]["task_colours"]), collected_size(cfg, split)[0]   # counted, not read
         if held < whole and not (split == "train" and cfg.tasks):     # a small or stale file: said, not refused
             print(f"note: {path} holds {held} of the {whole} {split} colours this profile collects; the run "
                   f"uses those {held} (the whole set: move it away, or {collect_command(cfg, split)})", file=sys.stderr)
