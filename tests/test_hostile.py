@@ -216,7 +216,8 @@ def test_train_counts_each_tasks_copies_of_the_parameters_it_adapts(capsys, tmp_
      "--inner-steps, --inner-params do not apply to the lstm method (it never reads them); drop them"),
     (["--method", "random", "--inner-steps", "3", "--first-order", "true"], "do not apply to the random method"),
     (["--method", "contextual", "--alpha", "0.1"], "--alpha does not apply to the contextual method"),
-    (["--lstm-units", "8"], "--lstm-units does not apply to the mil method (it never reads it); drop it")])
+    (["--lstm-units", "8"], "--lstm-units does not apply to the mil method (it never reads it); drop it"),
+    (["--method", "lstm", "--random-stds", "0.5"], "--random-stds does not apply to the lstm method")])
 def test_train_refuses_a_flag_its_method_never_reads(capsys, tmp_path, argv, says):
     """`--method lstm --inner-steps 5` trained an LSTM and recorded 5 inner steps it never took."""
     line, _ = refused(capsys, train.main, ["--profile", "smoke", "--run", str(tmp_path / "run"), *argv,
@@ -224,7 +225,8 @@ def test_train_refuses_a_flag_its_method_never_reads(capsys, tmp_path, argv, say
                                            "--validation-data", str(tmp_path / "heldout.npz")])
     assert says in line
     nothing_written(tmp_path)
-    assert methods.of(dataclasses.replace(config.PROFILES["smoke"], method="lstm")).refuse_ignored(["lstm_units"]) is None
+    for method, reads in (("lstm", "lstm_units"), ("random", "random_stds"), ("mil", "inner_steps")):
+        assert methods.of(dataclasses.replace(config.PROFILES["smoke"], method=method)).refuse_ignored([reads]) is None
 
 
 def test_train_names_the_flag_of_a_bad_inner_loop_value(capsys, tmp_path):

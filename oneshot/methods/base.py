@@ -31,7 +31,7 @@ class Method:
     adapts = False        # does one demonstration change the parameters (eq. 1)? Then `unadapted` exists
     learns = True         # trained by meta-gradient; False: `fit` chooses its parameters instead
     has_network = True    # are its parameters a network's (checked against `network.param_shapes`)?
-    ignores = (*INNER_LOOP_FIELDS, "lstm_units")     # TrainConfig fields it never reads (`refuse_ignored`)
+    ignores = (*INNER_LOOP_FIELDS, "lstm_units", "random_stds")   # TrainConfig fields it never reads (`refuse_ignored`)
     width_flags = ("--channels", "--hidden", "--bias-transform")    # `train`'s flags that size its network
 
     def __init__(self, cfg):

@@ -104,7 +104,7 @@ class LSTM(Method):
     """The LSTM baseline: it reads the demonstration, then acts; `cfg.lstm_units` wide."""
 
     name = "lstm"
-    ignores = INNER_LOOP_FIELDS
+    ignores = (*INNER_LOOP_FIELDS, "random_stds")
     width_flags = (*Method.width_flags, "--lstm-units")
 
     def network_config(self, image_size):

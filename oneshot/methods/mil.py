@@ -45,7 +45,7 @@ class MIL(Method):
 
     name = "mil"
     adapts = True
-    ignores = ("lstm_units",)
+    ignores = ("lstm_units", "random_stds")
 
     def __init__(self, cfg):
         super().__init__(cfg)

@@ -5,7 +5,7 @@ one-shot trials is kept (`fit`), as the paper reports the best.
 import numpy as np
 
 from oneshot.maml import imitation
-from oneshot.methods.base import Method
+from oneshot.methods.base import INNER_LOOP_FIELDS, Method
 
 
 def random_policy(std, rng):
@@ -20,6 +20,7 @@ class RandomPolicy(Method):
     name = "random"
     learns = False
     has_network = False
+    ignores = (*INNER_LOOP_FIELDS, "lstm_units")
 
     def init_params(self, net_cfg, rng):
         return {"std": np.array([self.cfg.random_stds[0]], np.float32)}
