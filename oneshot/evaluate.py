@@ -81,6 +81,10 @@ def main(argv=None):
         method = methods.of(cfg)
     except ValueError as e:
         p.error(f"{e} (--alpha >= 0, --inner-steps >= 0)")
+    try:                                        # a baseline's checkpoint has no eq. (1) to change
+        method.refuse_ignored([k for k in ("alpha", "inner_steps") if getattr(args, k) is not None])
+    except ValueError as e:
+        p.error(str(e))
     if args.json:
         try:
             cli.not_an_input(args.json, [args.checkpoint] + [run_data.spec(cfg, split)[0] for split in FLAGS],

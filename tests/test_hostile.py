@@ -304,6 +304,17 @@ def test_evaluate_refuses_trials_below_one(capsys, tiny_checkpoint, trials):
     assert "--trials" in line and ">= 1" in line
 
 
+@pytest.mark.parametrize("method", ["lstm", "contextual", "random"])
+def test_evaluate_refuses_an_inner_step_for_a_policy_that_does_not_adapt(capsys, tmp_path, method):
+    """--alpha or --inner-steps on a baseline's checkpoint scored it as if they changed something."""
+    cfg, rng = dataclasses.replace(config.PROFILES["smoke"], method=method), np.random.default_rng(0)
+    net_cfg = methods.of(cfg).network_config(32)
+    params = methods.of(cfg).init_params(net_cfg, rng)
+    checkpoint.save(tmp_path / "c.npz", params, optim.adam_init(params), 0, rng, cfg, net_cfg)
+    line, _ = refused(capsys, evaluate.main, [str(tmp_path / "c.npz"), "--alpha", "0.1", "--inner-steps", "2"])
+    assert f"--alpha, --inner-steps do not apply to the {method} method (it never reads them); drop them" in line
+
+
 def test_evaluate_with_no_dataset_to_score_says_so(capsys, tiny_checkpoint):
     line, _ = refused(capsys, evaluate.main, [tiny_checkpoint, "--validation", "", "--train", ""])
     assert "--validation '' names no dataset, but the validation colours are what this scores" in line

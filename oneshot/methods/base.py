@@ -63,7 +63,7 @@ class Method:
             flags = ", ".join("--" + f.replace("_", "-") for f in ignored)
             raise ValueError(f"{flags} {'does' if len(ignored) == 1 else 'do'} not apply to the {self.cfg.method} "
                              f"method (it never reads {'it' if len(ignored) == 1 else 'them'}); drop "
-                             f"{'it' if len(ignored) == 1 else 'them'}, or name another --method")
+                             f"{'it' if len(ignored) == 1 else 'them'}")
 
     def parameter_count(self, net_cfg):
         """How many numbers its parameters hold, counted from their shapes (nothing is allocated)."""
