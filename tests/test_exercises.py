@@ -280,6 +280,13 @@ WRONG += [
      ["T // 5 is 0", "on a 3-step episode"]),              # right for T = 1 (e[-0:] is its one step), not T = 3
     (1, lambda e, t, r=0.05: bool(np.linalg.norm(np.asarray(e)[int(0.8 * len(e)):] - t, axis=-1).min() <= r),
      ["final fifth is too long", "of 23 steps it is the last T // 5 = 4"]),   # 5 of 23 steps; right for T = 50
+    # other distances than the straight line: right on every case off the diagonal (a wrong-answer audit)
+    (1, lambda e, t, r=0.05: bool(np.abs(np.asarray(e)[-max(1, len(e) // 5):] - t).max(-1).min() <= r),
+     ["largest coordinate difference", "0.06 m from the target at step 18, diagonally"]),
+    (1, lambda e, t, r=0.05: bool(np.abs(np.asarray(e)[-max(1, len(e) // 5):] - t).sum(-1).min() <= r),
+     ["you add the coordinate differences", "0.045 m from the target at step 18, diagonally"]),
+    (1, lambda e, t, r=0.05: bool(np.abs(np.asarray(e)[-max(1, len(e) // 5):, 0] - t[0]).min() <= r),
+     ["you measure one coordinate only"]),
     (2, _kinematics(lambda q: q[0], lambda q: q[0] + q[1]),
      ["on a batch of 5 poses", "has shape (2, 2); expected (5, 2) (axis 0: 2 instead of 5); q has leading axes: use "
       "q[..., 0] and q[..., 1]"]),
@@ -294,10 +301,16 @@ WRONG += [
                                             "'layer1_b'", "params['layer1_b']"]),
     (6, _inner_by_prefix(stop_gradient=True), ["first-order one", "MAML's meta-gradient through your update"]),
     (6, _inner_by_prefix(with_gradients=True), ["keys that were not asked for: ['grad_layer0_w'"]),
+    (6, lambda params, demo, loss_fn, alpha, only=None: {       # the part of a name before "_" is no prefix
+        k: v - alpha * grad(loss_fn)(params, demo)[k] if only is None or k.split("_")[0] in only or k in only else v
+        for k, v in params.items()}, ["holds key PREFIXES, not names or name parts: ('layer0_',)"]),
     (7, _meta_residual_reversed, ["(the opposite sign)"]),
     (8, lambda images, demo_images: np.concatenate([images, np.broadcast_to(demo_images[-1], images.shape)], -1),
      ["on a batch of 2 tasks", "demo_images[..., -1, :, :, :]"]),
     (8, _context(axis=-2), ["image's width", "(column: 12 instead of 6; channel: 3 instead of 6)"]),
+    (8, lambda images, demo_images: np.concatenate([images, np.broadcast_to(                  # one leading axis
+        demo_images[:, -1:] if demo_images.ndim == 5 else demo_images[-1:], images.shape)], -1),
+     ["two leading axes", "any number of leading axes"]),
     (9, _wilson_unguarded, ["raised ZeroDivisionError", "on 0 trials", "(0.0, 1.0)"]),
     (10, _lstm_in_place, ["changed its argument `c` in place"]),
     (10, _lstm(lambda x: sigmoid(np.clip(x, -10, 10))), ["large gate inputs (saturated gates)"]),

@@ -27,7 +27,10 @@ def _context_cases():
                  (image(2, 4, 6, 6, 3), image(2, 5, 6, 6, 3)),
                  hint="with a leading task axis, take every task's final demo frame, demo_images[..., -1, :, :, :]"),
             Case("one float32 frame of 5x7 (not square) and a 3-frame demo",
-                 (floats(1, 5, 7, 3), floats(3, 5, 7, 3)))]
+                 (floats(1, 5, 7, 3), floats(3, 5, 7, 3))),
+            Case("two leading axes, 3 x 2 tasks: images (3, 2, 4, 6, 6, 3), demos (3, 2, 5, 6, 6, 3)",
+                 (image(3, 2, 4, 6, 6, 3), image(3, 2, 5, 6, 6, 3)),
+                 hint="any number of leading axes: demo_images[..., -1:, :, :, :] takes every task's final frame")]
 
 
 def _wrong_context(frame=-1, axis=-1, context_first=False, own_frames=False, new_axis=False, transposed=False):

@@ -41,7 +41,8 @@ def _inner_cases():
               "layer1_w": rng.normal(0, 0.7, (5, 2)), "layer1_b": rng.normal(0, 0.1, 2)}
     demo = lambda: (rng.normal(size=(6, 3)), rng.normal(size=(6, 2)))
     cases = []
-    for alpha, only in [(0.1, ("layer1",)), (0.05, None), (0.3, ("layer0_w", "layer1_b")), (0.0, None)]:
+    for alpha, only in [(0.1, ("layer1",)), (0.05, None), (0.3, ("layer0_w", "layer1_b")), (0.0, None),
+                        (0.2, ("layer0_",)), (0.15, ("layer",))]:        # prefixes that are no part of a name
         words = "every parameter" if only is None else f"the keys starting with {' or '.join(map(repr, only))}"
         fixed = [k for k in params if only is not None and not k.startswith(only)]
         cases.append(Case(f"one step of alpha = {alpha} on {words}", (params, demo(), toy_loss, alpha, only),
@@ -79,6 +80,9 @@ INNER = Checker(
         Mistake("`only` holds key PREFIXES: {only} selects every key that starts with one of them "
                 "(key.startswith(tuple(only))), not only the keys equal to one",
                 _wrong_inner(adapts=lambda key, only: only is None or key in only)),
+        Mistake("`only` holds key PREFIXES, not names or name parts: {only} selects every key that starts with "
+                "one of them (key.startswith(tuple(only)))",
+                _wrong_inner(adapts=lambda key, only: only is None or key in only or key.split("_")[0] in only)),
         Mistake("you adapted only the keys starting with the first prefix of `only`: {only} selects every key "
                 "that starts with any of them (key.startswith(tuple(only)))",
                 _wrong_inner(adapts=lambda key, only: only is None or key.startswith(only[0]))),

@@ -44,13 +44,19 @@ def _success_cases():
     positions, target = _episode(20, range(16, 19), 0.01, rng, far=0.08)      # the mean 0.0275, the largest 0.08
     cases.append(Case("a 20-step episode 0.01 m from the target at steps 16-18, 0.08 m at every other step",
                       (positions, target, 0.05), {"T": 20, "w": 4, "r": 0.05}))
+    for d, words in ((0.06, "a near miss"), (0.045, "a success")):   # diagonal: only the straight line agrees
+        positions, target = _episode(20, [], d, rng)
+        positions[18] = target + d * np.sqrt(0.5)
+        cases.append(Case(f"a 20-step episode {d} m from the target at step 18, diagonally (45 degrees): "
+                          f"{words} for radius 0.05", (positions, target, 0.05), {"T": 20, "w": 4, "r": 0.05}))
     return cases
 
 
-def _judge(window, squared=False, mean=False, strict=False, fixed=None, every=False):
+def _judge(window, squared=False, mean=False, strict=False, fixed=None, every=False, distance=None):
     def is_success(end_effector, target, success_radius=0.05):
         e = np.asarray(end_effector)
         d = np.sum((window(e) - target) ** 2, -1) if squared else np.linalg.norm(window(e) - target, axis=-1)
+        d = d if distance is None else distance(np.abs(window(e) - target))
         d = d.mean() if mean else d.max() if every else d.min()
         r = success_radius if fixed is None else fixed
         return bool(d < r if strict else d <= r)
@@ -81,6 +87,12 @@ SUCCESS = Checker(
                 "(the minimum distance)", _judge(_fifth, mean=True)),
         Mistake("you require EVERY step of the final fifth to be within the radius: one step within it is "
                 "enough (the minimum distance)", _judge(_fifth, every=True)),
+        Mistake("you measure the largest coordinate difference (a square around the target): the distance is "
+                "the straight line, np.linalg.norm of the difference", _judge(_fifth, distance=lambda a: a.max(-1))),
+        Mistake("you add the coordinate differences: the distance is the straight line, np.linalg.norm of "
+                "the difference", _judge(_fifth, distance=lambda a: a.sum(-1))),
+        Mistake("you measure one coordinate only: the distance is the straight line in the plane, "
+                "np.linalg.norm of the (x, y) difference", _judge(_fifth, distance=lambda a: a[..., 0])),
     ))
 
 # ----------------------------------------------------------------------------------------------------
