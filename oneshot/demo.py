@@ -215,7 +215,7 @@ def main(argv=None):
     i, j = contrast_trial(outcomes, unadapted_outcomes)
     viz.save_together({                        # both drawn and encoded before either is written: a Ctrl-C
         strip: viz.encoded(film_strip(world.config, [(demo_list[a], trials[a, b][0]) for a, b in shown]), strip),
-        gif: viz.gif_encoded(animation(world.config, demo_list[i], *trials[i, j]))})   # leaves neither new
+        gif: viz.gif_encoded(animation(world.config, demo_list[i], *trials[i, j]))})   # while drawing changes neither
     failures = sum(not trials[a, b][0]["success"] for a, b in shown)
     print(f"wrote {strip} (each demo above the adapted policy's trial in a new scene; "
           f"{len(shown) - failures} reached, {failures} missed)")

@@ -133,10 +133,11 @@ def main(argv=None):
                          f"gradient, Adam's moments and the moving average)",
                          f"use smaller {', '.join(method.width_flags[:-1])} or {method.width_flags[-1]}")
         holds, less = method.meta_batch_words(net_cfg)
-        cli.check_memory(method.memory_bytes(net_cfg) + cfg.meta_batch * method.task_bytes(net_cfg, frames),
-                         f"a meta-batch of {cfg.meta_batch} tasks ({holds}; {frames} frames a demo), beside the "
-                         f"parameters", f"use a smaller --meta-batch (the profile's: {PROFILES[profile].meta_batch})"
-                         f"{less}, or a smaller network")
+        if method.learns:                      # the random policy draws no meta-batch (it is fitted: `fit`)
+            cli.check_memory(method.memory_bytes(net_cfg) + cfg.meta_batch * method.task_bytes(net_cfg, frames),
+                             f"a meta-batch of {cfg.meta_batch} tasks ({holds}; {frames} frames a demo), beside the "
+                             f"parameters", f"use a smaller --meta-batch (the profile's: "
+                             f"{PROFILES[profile].meta_batch}){less}, or a smaller network")
     except ValueError as e:
         p.error(str(e))
     if method.shards > frames:

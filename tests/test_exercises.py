@@ -306,7 +306,7 @@ WRONG += [
         for k, v in params.items()}, ["holds key PREFIXES, not names or name parts: ('layer0_',)"]),
     (7, _meta_residual_reversed, ["(the opposite sign)"]),
     (8, lambda images, demo_images: np.concatenate([images, np.broadcast_to(demo_images[-1], images.shape)], -1),
-     ["on a batch of 2 tasks", "demo_images[..., -1, :, :, :]"]),
+     ["on a batch of 2 tasks", "demo_images[..., -1:, :, :, :]"]),
     (8, _context(axis=-2), ["image's width", "(column: 12 instead of 6; channel: 3 instead of 6)"]),
     (8, lambda images, demo_images: np.concatenate([images, np.broadcast_to(                  # one leading axis
         demo_images[:, -1:] if demo_images.ndim == 5 else demo_images[-1:], images.shape)], -1),

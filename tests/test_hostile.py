@@ -167,6 +167,17 @@ def test_train_refuses_a_meta_batch_larger_than_memory(capsys, tmp_path):
     nothing_written(tmp_path)                                     # no dataset collected either
 
 
+def test_the_random_policy_is_not_refused_for_a_meta_batch_it_never_draws(tmp_path, monkeypatch):
+    """It is fitted, not trained on meta-batches: its meta-batch of 1,000 was refused as 11 GB of
+    activations of a network it does not have."""
+    monkeypatch.setattr(cli, "available_memory_bytes", lambda: 10 ** 9)
+    started = []
+    monkeypatch.setattr(train, "train", lambda cfg, *a, **k: started.append(cfg.meta_batch))
+    train.main(["--profile", "smoke", "--run", str(tmp_path / "run"), "--method", "random", "--meta-batch", "1000",
+                "--train-data", str(tmp_path / "train.npz"), "--validation-data", str(tmp_path / "heldout.npz")])
+    assert started == [1000]
+
+
 def test_a_baselines_meta_batch_refusal_offers_no_flag_of_eq_1(capsys, tmp_path, monkeypatch):
     """The LSTM's meta-batch that does not fit: the fix is the meta-batch or the network, not --inner-steps
     or --inner-params, which the LSTM refuses (`Method.ignores`)."""

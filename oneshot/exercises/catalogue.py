@@ -9,7 +9,8 @@ _EXERCISES = [
     Exercise(1, "is_success", "Sec. IV, the success criterion", "IV",
              "end_effector, target, success_radius=0.05", """
 Did the arm reach the target? Paper Section IV: a trial succeeds when the end effector comes
-within `success_radius` of the target at some step of the final fifth of the episode.
+within `success_radius` of the target (the straight-line distance) at some step of the final fifth
+of the episode.
 
 end_effector: (T, 2) end-effector positions after each of the T steps, metres.
 target: (2,) the target's centre, metres. success_radius: metres (0.05 in the paper).

@@ -25,7 +25,7 @@ def _context_cases():
     return [Case("5 frames of 6x6 uint8 images and a 7-frame demo", (image(5, 6, 6, 3), image(7, 6, 6, 3))),
             Case("a batch of 2 tasks: images (2, 4, 6, 6, 3), demos (2, 5, 6, 6, 3)",
                  (image(2, 4, 6, 6, 3), image(2, 5, 6, 6, 3)),
-                 hint="with a leading task axis, take every task's final demo frame, demo_images[..., -1, :, :, :]"),
+                 hint="with a leading task axis, take every task's final demo frame, demo_images[..., -1:, :, :, :]"),
             Case("one float32 frame of 5x7 (not square) and a 3-frame demo",
                  (floats(1, 5, 7, 3), floats(3, 5, 7, 3))),
             Case("two leading axes, 3 x 2 tasks: images (3, 2, 4, 6, 6, 3), demos (3, 2, 5, 6, 6, 3)",
