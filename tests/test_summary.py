@@ -4,6 +4,7 @@ worked out by hand from a few hand-written rows, and the figure read back from i
 (line data, error bars, labels), not from its pixels."""
 import json
 import os
+import textwrap
 
 import pytest
 
@@ -141,11 +142,42 @@ def test_the_figure_draws_each_lines_means_and_intervals_in_percent(tmp_path, fi
     assert ax.get_xlabel() == "meta-training demonstrations (colours x demos per colour)"
     assert ax.get_title() == "Figure 2 by hand"
     assert [t.get_text() for t in fig.texts] == ["error bars: an interval by hand"]
-    summary.plot({"methods": {"lstm": s["methods"]["lstm"][1:]}}, tmp_path / "one.png", {"lstm": "LSTM"})
-    assert figures[1].axes[0].get_xlim() == pytest.approx((8, 32))     # one size: centred, a factor 2 each side
+    summary.plot({"methods": {"lstm": s["methods"]["lstm"]}}, tmp_path / "none.png", {"lstm": "LSTM"})
     assert figures[1].axes[0].get_ylabel() == "one-shot success, held-out colours (%)"   # no config: no split named
     summary.plot({"methods": {"lstm": s["methods"]["lstm"]}, "config": None}, tmp_path / "null.png", {"lstm": "LSTM"})
     assert figures[2].axes[0].get_ylabel() == "one-shot success, held-out colours (%)"   # a null one: the same
+
+
+def test_a_figure_of_one_size_draws_a_row_per_line(tmp_path, figures):
+    """A search or an ablation (every line at one size; at one x they would hide each other): a row per
+    line, the labels' order top to bottom, each row's mean as a point at 100 x its mean rate with its
+    interval as a horizontal bar (never past the mean at its low end, as above), and the lowest and
+    highest seed as open circles only where two or more seeds ran; x 0-100% of the scored colours at
+    that size; a long label wrapped, not cut; the lines without a label left out."""
+    long = "MIL, every parameter adapts (the released code's loop, feature points)"
+    s = {"methods": {"mil-conv0": [{"size": 9, "runs": 2, "mean_rate": 0.625, "ci_low": 0.5, "ci_high": 0.75,
+                                    "min_rate": 0.5, "max_rate": 0.75}],
+                     "lstm": [{"size": 9, "runs": 1, "mean_rate": 0.25, "ci_low": 0.375, "ci_high": 0.5,
+                               "min_rate": 0.25, "max_rate": 0.25}],
+                     "unlabelled": [{"size": 9, "runs": 1, "mean_rate": 0.5, "ci_low": 0.5, "ci_high": 0.5}]},
+         "interval": "an interval by hand", "config": {"score": "test"}}
+    summary.plot(s, tmp_path / "fig2.png", {"mil-conv0": long, "random": "random policy", "lstm": "LSTM"},
+                 title="one size by hand")
+    (fig,) = figures
+    (ax,) = fig.axes
+    assert [t.get_text() for t in ax.get_yticklabels()] == ["LSTM", textwrap.fill(long, 40)]   # bottom to top
+    assert "\n" in textwrap.fill(long, 40) and list(ax.get_yticks()) == [0, 1]
+    bars = {}
+    for bar in ax.containers:
+        point, _, (segments,) = bar.lines
+        bars[bar.get_label()] = (point.get_xydata().tolist(), [[tuple(end) for end in seg] for seg in segments.get_segments()])
+    assert bars == {long: ([[62.5, 1]], [[(50, 1), (75, 1)]]), "LSTM": ([[25, 0]], [[(25, 0), (50, 0)]])}
+    circles = [line.get_xydata().tolist() for line in ax.lines if line.get_markerfacecolor() == "none"]
+    assert circles == [[[50, 1], [75, 1]]]                         # seeds: mil-conv0's two, none for one run
+    assert ax.get_xlim() == (0, 100) and ax.get_title() == "one size by hand"
+    assert ax.get_xlabel() == "one-shot success, test colours (%)\nat 9 meta-training demonstrations"
+    assert [t.get_text() for t in fig.texts] == ["error bars: an interval by hand; open circles: the lowest and highest seed"]
+    assert (tmp_path / "fig2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def _results(folder, rows, config):
@@ -159,7 +191,7 @@ def _results(folder, rows, config):
 def test_summarise_pairs_and_labels_the_lines_in_the_summarys_order(tmp_path, figures):
     """`summarise` of a folder whose summary names its lines random, lstm, mil-all, mil-conv0 and no scored
     split (a sweep from before the test split): the differences each line that adapts minus each that does
-    not, in that order; the split is the validation colours; the legend is those lines' labels in that
+    not, in that order; the split is the validation colours; the figure's rows are those lines' labels in that
     order, the title counts 2 seeds (8 rows). By hand: mil-conv0 8/8 and 6/8, lstm 2/8 and 0/8, one colour
     each: 0.875 - 0.125 = 0.75."""
     order = ["random", "lstm", "mil-all", "mil-conv0"]
@@ -171,11 +203,11 @@ def test_summarise_pairs_and_labels_the_lines_in_the_summarys_order(tmp_path, fi
     assert [(d["a"], d["b"]) for d in s["differences"]] == [("mil-all", "random"), ("mil-all", "lstm"),
                                                            ("mil-conv0", "random"), ("mil-conv0", "lstm")]
     assert s["differences"][3]["difference"] == 0.75 and s["config"]["score"] == "validation"
-    (fig,) = figures
-    assert [t.get_text() for t in fig.legends[0].get_texts()] == [
+    (fig,) = figures                                   # one size: a row per line, the first at the top
+    assert [t.get_text() for t in fig.axes[0].get_yticklabels()][::-1] == [
         "random policy", "LSTM", "MIL, every parameter adapts (step 0.25)", "MIL, first convolution adapts"]
     assert fig.axes[0].get_title() == "Figure 2 (tiny profile, 2 seeds)"
-    assert fig.axes[0].get_ylabel() == "one-shot success, validation colours (%)"
+    assert fig.axes[0].get_xlabel().startswith("one-shot success, validation colours (%)")
 
 
 def test_summarise_reads_a_summary_whose_config_is_null_as_one_without(tmp_path):

@@ -8,6 +8,7 @@ import dataclasses
 import json
 import math
 import os
+import textwrap
 
 import numpy as np
 
@@ -20,6 +21,7 @@ except ImportError:
     Figure = None
 PLOTS = Figure is not None                     # can `plot` draw here?
 LEGEND_ROW = 0.16                              # inches of figure per row of the legend (`plot`)
+LINE_ROW = 0.3                                 # inches of figure per line of a one-size figure (`plot`)
 
 
 def _groups(rows):
@@ -224,16 +226,21 @@ def write_summary(summary, path):
 def plot(summary, path, labels, title="One-shot imitation of new colours vs. meta-training data"):
     """Figure 2 as a PNG at `path` (atomically): x the meta-training demonstrations (log scale), y the
     one-shot success on the scored colours (%), per method the mean over seeds with the 95% interval over
-    seeds and colours as error bars (`stats`; the figure's footnote says so). labels: {method: legend label}, in legend order. Needs matplotlib
-    (pip install ".[plots]")."""
+    seeds and colours as error bars (`stats`; the figure's footnote says so). labels: {method: legend label},
+    in legend order. A summary of one size (a search, an ablation) is drawn one row per line instead
+    (`_plot_one_size`): at one x, the lines would hide each other. Needs matplotlib (pip install ".[plots]")."""
     if Figure is None:
         raise RuntimeError('the plot needs matplotlib: pip install ".[plots]"')
     shown = [m for m in labels if m in summary["methods"]]
+    split = (summary.get("config") or {}).get("score", "held-out")       # none recorded (absent or null)
+    footnote = "error bars: " + summary.get("interval", "95% intervals")
+    sizes = {p["size"] for m in shown for p in summary["methods"][m]}
+    if len(sizes) == 1:
+        return _plot_one_size(summary, path, {m: labels[m] for m in shown}, title, split, footnote)
     legend_rows = -(-len(shown) // 2)              # the legend, below the axes in 2 columns: it hides no point
     height = 4.4 + LEGEND_ROW * legend_rows        # inches
     fig = Figure(figsize=(6.4, height), dpi=150)
     ax = fig.add_subplot()
-    sizes = set()
     for i, method in enumerate(shown):
         points = summary["methods"][method]
         x = [p["size"] for p in points]
@@ -241,17 +248,13 @@ def plot(summary, path, labels, title="One-shot imitation of new colours vs. met
         below = [max(0.0, 100 * (p["mean_rate"] - p["ci_low"])) for p in points]
         above = [max(0.0, 100 * (p["ci_high"] - p["mean_rate"])) for p in points]
         ax.errorbar(x, y, yerr=[below, above], marker="osD^v"[i % 5], capsize=3, label=labels[method])
-        sizes.update(x)
     ax.set_xscale("log")
     ax.set_xticks(sorted(sizes), [str(s) for s in sorted(sizes)])
-    if len(sizes) == 1:                        # one point: centred, not where the log scale's limits put it
-        ax.set_xlim(min(sizes) / 2, min(sizes) * 2)
     ax.minorticks_off()
     ax.set_ylim(0, 100)
     ax.set_xlabel("meta-training demonstrations (colours x demos per colour)")
-    split = (summary.get("config") or {}).get("score", "held-out")       # none recorded (absent or null)
     ax.set_ylabel(f"one-shot success, {split} colours (%)")
-    fig.text(0.01, 0.005, "error bars: " + summary.get("interval", "95% intervals"), fontsize=5, color="0.35")
+    fig.text(0.01, 0.005, footnote, fontsize=5, color="0.35")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
     fig.legend(*ax.get_legend_handles_labels(), fontsize=7, loc="lower center", bbox_to_anchor=(0.5, 0.1 / height),
@@ -259,3 +262,28 @@ def plot(summary, path, labels, title="One-shot imitation of new colours vs. met
     fig.tight_layout(rect=(0, (0.15 + LEGEND_ROW * legend_rows) / height, 1, 1))   # room for legend and footnote
     with atomic_write(path) as f:
         fig.savefig(f, format="png", bbox_inches="tight")   # a long legend label is never cut
+
+
+def _plot_one_size(summary, path, labels, title, split, footnote):
+    """`plot` of a summary whose lines all have one size: a row per line, top to bottom in the labels'
+    order, labelled on the y axis; its mean over seeds with the interval as a horizontal error bar and, for
+    two seeds or more, the lowest and highest seed as open circles."""
+    fig = Figure(figsize=(6.4, 1.4 + LINE_ROW * len(labels)), dpi=150)
+    ax = fig.add_subplot()
+    for y, method in enumerate(reversed(labels)):
+        (p,) = summary["methods"][method]           # one size: one point (`_groups`)
+        mean = 100 * p["mean_rate"]
+        ax.errorbar([mean], [y], xerr=[[max(0.0, mean - 100 * p["ci_low"])], [max(0.0, 100 * p["ci_high"] - mean)]],
+                    fmt="o", color="C0", capsize=3, label=labels[method])
+        if p.get("runs", 1) > 1:
+            ax.plot([100 * p["min_rate"], 100 * p["max_rate"]], [y, y], "o", mfc="none", color="0.4", ms=5)
+    ax.set_yticks(range(len(labels)), [textwrap.fill(label, 40) for label in reversed(labels.values())], fontsize=7)
+    ax.set_ylim(-0.6, len(labels) - 0.4)
+    ax.set_xlim(0, 100)
+    ax.set_xlabel(f"one-shot success, {split} colours (%)\nat {p['size']} meta-training demonstrations")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, axis="x")
+    fig.text(0.01, 0.005, footnote + "; open circles: the lowest and highest seed", fontsize=5, color="0.35")
+    fig.tight_layout(rect=(0, 0.12 / fig.get_figheight(), 1, 1))         # room for the footnote
+    with atomic_write(path) as f:
+        fig.savefig(f, format="png", bbox_inches="tight")   # a long label is never cut
