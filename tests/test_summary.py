@@ -4,7 +4,6 @@ worked out by hand from a few hand-written rows, and the figure read back from i
 (line data, error bars, labels), not from its pixels."""
 import json
 import os
-import textwrap
 
 import pytest
 
@@ -149,35 +148,51 @@ def test_the_figure_draws_each_lines_means_and_intervals_in_percent(tmp_path, fi
 
 
 def test_a_figure_of_one_size_draws_a_row_per_line(tmp_path, figures):
-    """A search or an ablation (every line at one size; at one x they would hide each other): a row per
-    line, the labels' order top to bottom, each row's mean as a point at 100 x its mean rate with its
-    interval as a horizontal bar (never past the mean at its low end, as above), and the lowest and
-    highest seed as open circles only where two or more seeds ran; x 0-100% of the scored colours at
-    that size; a long label wrapped, not cut; the lines without a label left out."""
-    long = "MIL, every parameter adapts (the released code's loop, feature points)"
+    """A search or an ablation (every drawn line at one size; at one x they would hide each other): a row
+    per line, the labels' order top to bottom, each row's mean as a point at 100 x its mean rate with its
+    interval as a horizontal bar (never past the mean at either end, as above), and the lowest and highest
+    seed as open circles only where two or more seeds ran (the footnote names them only then); x 0-100% of
+    the scored colours at that size; 0.3 inch a row; a long label wrapped at a space, not cut or split at a
+    hyphen; a line without a label left out, whatever its size."""
+    long = "MIL, every parameter adapts (mil-released+widths-flat, feature points)"
     s = {"methods": {"mil-conv0": [{"size": 9, "runs": 2, "mean_rate": 0.625, "ci_low": 0.5, "ci_high": 0.75,
                                     "min_rate": 0.5, "max_rate": 0.75}],
                      "lstm": [{"size": 9, "runs": 1, "mean_rate": 0.25, "ci_low": 0.375, "ci_high": 0.5,
                                "min_rate": 0.25, "max_rate": 0.25}],
-                     "unlabelled": [{"size": 9, "runs": 1, "mean_rate": 0.5, "ci_low": 0.5, "ci_high": 0.5}]},
+                     "random": [{"size": 9, "runs": 1, "mean_rate": 0.5, "ci_low": 0.25, "ci_high": 0.375,
+                                 "min_rate": 0.5, "max_rate": 0.5}],
+                     "unlabelled": [{"size": 16, "runs": 1, "mean_rate": 0.5, "ci_low": 0.5, "ci_high": 0.5}]},
          "interval": "an interval by hand", "config": {"score": "test"}}
     summary.plot(s, tmp_path / "fig2.png", {"mil-conv0": long, "random": "random policy", "lstm": "LSTM"},
                  title="one size by hand")
     (fig,) = figures
     (ax,) = fig.axes
-    assert [t.get_text() for t in ax.get_yticklabels()] == ["LSTM", textwrap.fill(long, 40)]   # bottom to top
-    assert "\n" in textwrap.fill(long, 40) and list(ax.get_yticks()) == [0, 1]
+    assert [t.get_text() for t in ax.get_yticklabels()] == [          # bottom to top
+        "LSTM", "random policy", "MIL, every parameter adapts\n(mil-released+widths-flat, feature\npoints)"]
+    assert list(ax.get_yticks()) == [0, 1, 2] and ax.get_ylim() == (-0.6, 2.6)
     bars = {}
     for bar in ax.containers:
         point, _, (segments,) = bar.lines
         bars[bar.get_label()] = (point.get_xydata().tolist(), [[tuple(end) for end in seg] for seg in segments.get_segments()])
-    assert bars == {long: ([[62.5, 1]], [[(50, 1), (75, 1)]]), "LSTM": ([[25, 0]], [[(25, 0), (50, 0)]])}
+    assert bars == {long: ([[62.5, 2]], [[(50, 2), (75, 2)]]), "random policy": ([[50, 1]], [[(25, 1), (50, 1)]]),
+                    "LSTM": ([[25, 0]], [[(25, 0), (50, 0)]])}
     circles = [line.get_xydata().tolist() for line in ax.lines if line.get_markerfacecolor() == "none"]
-    assert circles == [[[50, 1], [75, 1]]]                         # seeds: mil-conv0's two, none for one run
+    assert circles == [[[50, 2], [75, 2]]]                         # seeds: mil-conv0's two, none for one run
     assert ax.get_xlim() == (0, 100) and ax.get_title() == "one size by hand"
     assert ax.get_xlabel() == "one-shot success, test colours (%)\nat 9 meta-training demonstrations"
     assert [t.get_text() for t in fig.texts] == ["error bars: an interval by hand; open circles: the lowest and highest seed"]
+    assert fig.get_figheight() == pytest.approx(1.4 + 0.3 * 3)
     assert (tmp_path / "fig2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    one_seed = {"methods": {"lstm": [{**s["methods"]["lstm"][0], "size": 2304}]}, "interval": "by hand"}
+    summary.plot(one_seed, tmp_path / "one.png", {"lstm": "LSTM"})
+    assert [t.get_text() for t in figures[1].texts] == ["error bars: by hand"]     # no circle drawn, none named
+    assert figures[1].axes[0].get_xlabel() == "one-shot success, held-out colours (%)\nat 2,304 meta-training demonstrations"
+    twice = {"methods": {"lstm": s["methods"]["lstm"] * 2}}
+    with pytest.raises(ValueError, match="2 points of lstm at size 9: one per line and size"):
+        summary.plot(twice, tmp_path / "twice.png", {"lstm": "LSTM"})
+    assert not (tmp_path / "twice.png").exists()
+    summary.plot({"methods": {"unlabelled": s["methods"]["unlabelled"]}}, tmp_path / "none.png", {"lstm": "LSTM"})
+    assert (tmp_path / "none.png").exists() and not figures[-1].axes[0].lines    # no line to draw: empty axes
 
 
 def _results(folder, rows, config):

@@ -236,7 +236,7 @@ def plot(summary, path, labels, title="One-shot imitation of new colours vs. met
     footnote = "error bars: " + summary.get("interval", "95% intervals")
     sizes = {p["size"] for m in shown for p in summary["methods"][m]}
     if len(sizes) == 1:
-        return _plot_one_size(summary, path, {m: labels[m] for m in shown}, title, split, footnote)
+        return _plot_one_size(summary, path, {m: labels[m] for m in shown}, title, split, footnote, sizes.pop())
     legend_rows = -(-len(shown) // 2)              # the legend, below the axes in 2 columns: it hides no point
     height = 4.4 + LEGEND_ROW * legend_rows        # inches
     fig = Figure(figsize=(6.4, height), dpi=150)
@@ -264,26 +264,34 @@ def plot(summary, path, labels, title="One-shot imitation of new colours vs. met
         fig.savefig(f, format="png", bbox_inches="tight")   # a long legend label is never cut
 
 
-def _plot_one_size(summary, path, labels, title, split, footnote):
-    """`plot` of a summary whose lines all have one size: a row per line, top to bottom in the labels'
+def _plot_one_size(summary, path, labels, title, split, footnote, size):
+    """`plot` of a summary whose lines all have one `size`: a row per line, top to bottom in the labels'
     order, labelled on the y axis; its mean over seeds with the interval as a horizontal error bar and, for
-    two seeds or more, the lowest and highest seed as open circles."""
+    two seeds or more, the lowest and highest seed as open circles (drawn over the mean)."""
     fig = Figure(figsize=(6.4, 1.4 + LINE_ROW * len(labels)), dpi=150)
     ax = fig.add_subplot()
+    seeds_drawn = False
     for y, method in enumerate(reversed(labels)):
-        (p,) = summary["methods"][method]           # one size: one point (`_groups`)
+        points = summary["methods"][method]
+        if len(points) != 1:
+            raise ValueError(f"the summary has {len(points)} points of {method} at size {size}: one per line and "
+                             f"size (write it with summarise)")
+        p = points[0]
         mean = 100 * p["mean_rate"]
         ax.errorbar([mean], [y], xerr=[[max(0.0, mean - 100 * p["ci_low"])], [max(0.0, 100 * p["ci_high"] - mean)]],
                     fmt="o", color="C0", capsize=3, label=labels[method])
-        if p.get("runs", 1) > 1:
-            ax.plot([100 * p["min_rate"], 100 * p["max_rate"]], [y, y], "o", mfc="none", color="0.4", ms=5)
-    ax.set_yticks(range(len(labels)), [textwrap.fill(label, 40) for label in reversed(labels.values())], fontsize=7)
+        if p["runs"] > 1:
+            ax.plot([100 * p["min_rate"], 100 * p["max_rate"]], [y, y], "o", mfc="none", color="0.3", ms=6, zorder=4)
+            seeds_drawn = True
+    names = [textwrap.fill(label, 40, break_on_hyphens=False) for label in reversed(labels.values())]
+    ax.set_yticks(range(len(labels)), names, fontsize=7)
     ax.set_ylim(-0.6, len(labels) - 0.4)
     ax.set_xlim(0, 100)
-    ax.set_xlabel(f"one-shot success, {split} colours (%)\nat {p['size']} meta-training demonstrations")
+    ax.set_xlabel(f"one-shot success, {split} colours (%)\nat {size:,} meta-training demonstrations")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3, axis="x")
-    fig.text(0.01, 0.005, footnote + "; open circles: the lowest and highest seed", fontsize=5, color="0.35")
+    fig.text(0.01, 0.005, footnote + "; open circles: the lowest and highest seed" * seeds_drawn, fontsize=5,
+             color="0.35")
     fig.tight_layout(rect=(0, 0.12 / fig.get_figheight(), 1, 1))         # room for the footnote
     with atomic_write(path) as f:
         fig.savefig(f, format="png", bbox_inches="tight")   # a long label is never cut
