@@ -15,6 +15,7 @@ run scored on the profile's split (`oneshot.experiments.fig2`):
     python -m oneshot.experiments difference results/fig2_paper-2304 mil-released+widths-flat mil-conv0  # a - b
     python -m oneshot.experiments fig2 --profile ablation --data-only     # its datasets only
     python -m oneshot.experiments ship --profile ablation --line L --seed 0 --out F.npz   # a run as a policy
+    python -m oneshot.experiments scenes results/fig2_ablation/scenes   # learnt the task, or its scenes?
 
 It writes `results/fig2_<profile>/` where it runs (or `--out`): runs.csv (one row per finished run),
 summary.json (per line and size: the mean over seeds and its 95% interval over seeds and scored
@@ -45,6 +46,7 @@ from oneshot.experiments.lines import LABELS, LINES
 from oneshot.experiments.parts import narrow
 from oneshot import methods
 from oneshot.experiments.rows import read_rows
+from oneshot.experiments.scenes import add_scenes_command, run_scenes_command
 from oneshot.experiments.ship import add_ship_command, run_ship_command
 from oneshot.experiments.summary import (PLOTS, compare, plot, pool_evaluations, read_evaluations, summarise,
                                         write_summary)
@@ -122,14 +124,13 @@ def main(argv=None):
     s.add_argument("evaluations", nargs="+", metavar="JSON",
                    help="`python -m oneshot.evaluate CKPT --split S --json FILE` results, one per training seed")
     s.add_argument("--out", type=cli.writable_file, default=None, help="also write the summary here (JSON)")
-    h = add_ship_command(commands)
-    d = add_difference_command(commands)
+    extra = {name: (add(commands), run) for name, add, run in [("ship", add_ship_command, run_ship_command), (
+        "difference", add_difference_command, run_difference_command), ("scenes", add_scenes_command, run_scenes_command)]}
     commands.metavar = "{" + ",".join(commands.choices) + "}"    # named so in the error when none is given
     args = p.parse_args(argv)
-    if args.experiment == "ship":
-        return run_ship_command(args, h)
-    if args.experiment == "difference":
-        return run_difference_command(args, d)
+    if args.experiment in extra:                # a command of its own module: its parser says its errors
+        parser, run = extra[args.experiment]
+        return run(args, parser)
     if args.experiment == "summarise":
         return _summarise(args.results, argv)
     if args.experiment == "seeds":

@@ -1,0 +1,117 @@
+"""Has a policy learnt the task, or its meta-training scenes? (docs/results.md, section 10.) A scene check
+scores a policy on its own training colours twice, each trial adapted on one demonstration:
+
+    python -m oneshot.evaluate CKPT --trials 5 --unadapted --demo-scenes --json X_demo_scenes.json
+    python -m oneshot.evaluate CKPT --trials 5 --unadapted --json X_new_scenes.json
+
+acting in the recorded scene of one of the demonstrations it meta-trained on, and in new scenes of the
+same colours. A policy that learnt the task scores alike in both; one that memorised its scenes scores
+high in them and low in new ones. This module pairs a folder's files by name (X_demo_scenes[S].json with
+X_new_scenes[S].json, labelled X[S]) and draws the pairs, one row each:
+
+    python -m oneshot.experiments scenes results/fig2_ablation/scenes     # -> results/fig2_ablation/scenes.png
+"""
+import os
+import textwrap
+
+from oneshot.experiments.summary import Figure, read_evaluations
+from oneshot.tools.files import atomic_write
+
+DEMO, NEW = "_demo_scenes", "_new_scenes"
+
+
+def read_pairs(folder):
+    """([{"label", "demo": (successes, trials), "new": (successes, trials)}], unpaired): the training
+    colours' scores of each pair of scene-check files in `folder`, in name order, and the names of the JSON
+    files left unpaired (e.g. evaluate's --other-colour-demo control, which has no new-scene twin).
+    ValueError names a pair that is not one policy's two checks."""
+    names = sorted(n for n in os.listdir(folder) if n.endswith(".json"))
+    firsts = [n for n in names if DEMO in n and n.replace(DEMO, NEW, 1) in names]
+    twins = [n.replace(DEMO, NEW, 1) for n in firsts]
+    pairs = []
+    for name, twin in zip(firsts, twins):
+        demo, new = read_evaluations([os.path.join(folder, n) for n in (name, twin)])
+        counts = _training_colours(demo, name, True), _training_colours(new, twin, False)
+        if demo["policy"].get("checkpoint") != new["policy"].get("checkpoint") or \
+                bool(demo["policy"]["recipe"].get("raw")) != bool(new["policy"]["recipe"].get("raw")):
+            raise ValueError(f"{name} and {twin} score two policies (other checkpoints, or one with --raw): a pair "
+                             f"is one policy's two checks")
+        pairs.append({"label": name.replace(DEMO, "", 1)[:-len(".json")], "demo": counts[0], "new": counts[1]})
+    return pairs, [n for n in names if n not in firsts and n not in twins]
+
+
+def _training_colours(result, name, demo_scenes):
+    """(successes, trials) of an evaluate --json result on the training colours, checked to be the check
+    its name says (in the demonstrations' scenes or not); else ValueError."""
+    try:
+        recipe, train = result["policy"]["recipe"], result["train"]
+        counts = int(train["successes"]), int(train["trials"])
+        if not 0 <= counts[0] <= counts[1] or counts[1] < 1 or not isinstance(recipe, dict):
+            raise ValueError(counts)
+    except (KeyError, TypeError, ValueError):
+        raise ValueError(f"{name} holds no training-colour score: write it with `python -m oneshot.evaluate CKPT "
+                         f"--trials 5 --unadapted{' --demo-scenes' * demo_scenes} --json {name}`") from None
+    if bool(recipe.get("demo_scenes")) != demo_scenes:
+        raise ValueError(f"{name} was scored {'in new scenes' if demo_scenes else 'in its demonstrations scenes'}, "
+                         f"not as its name says: name it ...{NEW if demo_scenes else DEMO}.json")
+    return counts
+
+
+def plot_scenes(pairs, path, title="Learnt the task, or its meta-training scenes?"):
+    """A PNG at `path` (atomically): a row per pair, top to bottom in order, the training colours' success
+    in the demonstrations' scenes (filled) and in new scenes (open), joined: a long bar is memorising."""
+    if Figure is None:
+        raise RuntimeError('the plot needs matplotlib: pip install ".[plots]"')
+    fig = Figure(figsize=(6.4, 1.5 + 0.3 * len(pairs)), dpi=150)
+    ax = fig.add_subplot()
+    for y, p in enumerate(reversed(pairs)):
+        demo, new = (100 * s / t for s, t in (p["demo"], p["new"]))
+        ax.plot([new, demo], [y, y], color="0.6", zorder=1)
+        ax.plot([demo], [y], "o", color="C3", label="in scenes it meta-trained on" * (y == 0), zorder=2, clip_on=False)
+        ax.plot([new], [y], "o", mfc="white", color="C0", label="in new scenes" * (y == 0), zorder=3, clip_on=False)
+    labels = [textwrap.fill(p["label"], 40, break_on_hyphens=False) for p in reversed(pairs)]
+    ax.set_yticks(range(len(pairs)), labels, fontsize=7)
+    ax.set_ylim(-0.6, len(pairs) - 0.4)
+    ax.set_xlim(0, 100)
+    ax.set_xlabel("one-shot success on its training colours (%)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, axis="x")
+    fig.legend(*ax.get_legend_handles_labels(), fontsize=7, loc="lower center", ncol=2, frameon=False)
+    fig.tight_layout(rect=(0, 0.35 / fig.get_figheight(), 1, 1))          # room for the legend
+    with atomic_write(path) as f:
+        fig.savefig(f, format="png", bbox_inches="tight")
+
+
+def add_scenes_command(commands):
+    """`python -m oneshot.experiments scenes`'s parser, added to `commands` (argparse subparsers)."""
+    s = commands.add_parser("scenes", help="a folder of scene checks (evaluate --demo-scenes and not) as a table "
+                                           "and a picture: learnt the task, or its meta-training scenes?")
+    s.add_argument("folder", help="a folder of X_demo_scenes.json / X_new_scenes.json pairs, e.g. "
+                                  "results/fig2_ablation/scenes")
+    s.add_argument("--out", default=None, help="the picture (default: the folder's name + .png, beside it)")
+    return s
+
+
+def run_scenes_command(args, parser):
+    """Print each pair's two scores and draw them; a folder without pairs is a one-line error (exit 2)."""
+    if not os.path.isdir(args.folder):
+        parser.error(f"no folder {args.folder}: name a folder of scene checks, e.g. results/fig2_ablation/scenes")
+    try:
+        pairs, unpaired = read_pairs(args.folder)
+    except (FileNotFoundError, ValueError) as e:
+        parser.error(str(e))
+    if not pairs:
+        parser.error(f"{args.folder} holds no pair of X{DEMO}.json and X{NEW}.json (evaluate --json files)")
+    pct = lambda c: f"{100 * c[0] / c[1]:5.1f}% ({c[0]}/{c[1]})"
+    print(f"training colours, adapted on one demonstration: in its demonstrations' scenes / in new scenes")
+    for p in pairs:
+        print(f"  {p['label']:44s} {pct(p['demo'])}  {pct(p['new'])}")
+    if unpaired:
+        print(f"not paired: {', '.join(unpaired)}")
+    if Figure is None:
+        print('no picture: it needs matplotlib (pip install ".[plots]")')
+        return 0
+    out = args.out or os.path.normpath(args.folder) + ".png"
+    plot_scenes(pairs, out)
+    print(f"picture: {out}")
+    return 0
