@@ -289,6 +289,9 @@ def test_experiments(fig2_results, tmp_path):
         expected.append([name, demo["train"]["successes"], new["train"]["successes"],
                          demo["validation"]["successes"], new["validation"]["successes"]])
     assert list(map(list, v["scenes_table"])) == sorted(expected)
+    picture = next(c for c in nb.cells if c.get("id") == "experiments-scenes-picture")   # ... and as a picture
+    shown = [o["data"] for o in picture.outputs if o.get("output_type") == "display_data"]   # Agg: as text
+    assert [d.get("text/plain", "")[:13] for d in shown] == ["<Figure size "] * bool(expected and not v["plt_is_none"])
     # ... and the other-colour control: each policy's own-colour and farthest-hue counts, as its files hold them
     # (Figure 2's seeds 1 and 2 in fig2_paper, seeds 3 and 4 in fig2_paper-2304), in the order of their names
     controls = [fig2_results / folder / "scenes" for folder in ("fig2_paper", "fig2_paper-2304")]

@@ -57,9 +57,10 @@ def _training_colours(result, name, demo_scenes):
     return counts
 
 
-def plot_scenes(pairs, path, title="Learnt the task, or its meta-training scenes?"):
-    """A PNG at `path` (atomically): a row per pair, top to bottom in order, the training colours' success
-    in the demonstrations' scenes (filled) and in new scenes (open), joined: a long bar is memorising."""
+def figure(pairs, title="Learnt the task, or its meta-training scenes?"):
+    """The picture of `pairs` (`read_pairs`), a matplotlib Figure: a row per pair, top to bottom in order,
+    the training colours' success in the demonstrations' scenes (filled) and in new scenes (open), joined:
+    a long bar is memorising. In a notebook it shows itself; `plot_scenes` saves it."""
     if Figure is None:
         raise RuntimeError('the plot needs matplotlib: pip install ".[plots]"')
     fig = Figure(figsize=(6.4, 1.5 + 0.3 * len(pairs)), dpi=150)
@@ -78,8 +79,13 @@ def plot_scenes(pairs, path, title="Learnt the task, or its meta-training scenes
     ax.grid(alpha=0.3, axis="x")
     fig.legend(*ax.get_legend_handles_labels(), fontsize=7, loc="lower center", ncol=2, frameon=False)
     fig.tight_layout(rect=(0, 0.35 / fig.get_figheight(), 1, 1))          # room for the legend
+    return fig
+
+
+def plot_scenes(pairs, path):
+    """`figure(pairs)` as a PNG at `path` (atomically)."""
     with atomic_write(path) as f:
-        fig.savefig(f, format="png", bbox_inches="tight")
+        figure(pairs).savefig(f, format="png", bbox_inches="tight")
 
 
 def add_scenes_command(commands):
