@@ -7,6 +7,7 @@
     assert_batched_equals_loop                  oneshot.maml.batched == oneshot.maml.inner's per-task loop
     RIGHT_1, RIGHT_9                            students' right answers to exercises 1 and 9, as source text
     one_line_error, check_hostile_scenes        what the world, and the Gymnasium env on it, refuse in one line
+    keep_figures                                the matplotlib Figures a module draws, kept to be read back
 """
 import inspect
 
@@ -170,3 +171,17 @@ def student_copy(number):
     namespace = {}
     exec(compile(solution_source(number), f"<a student's exercise {number}>", "exec"), namespace)
     return namespace[EXERCISES[number].name]
+
+
+def keep_figures(monkeypatch, module):
+    """[the matplotlib Figures `module` draws from now on, in order], each kept after it is saved (the
+    module draws with a module-level `Figure`, matplotlib.figure.Figure)."""
+    pytest.importorskip("matplotlib")
+    drawn = []
+
+    class Kept(module.Figure):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            drawn.append(self)
+    monkeypatch.setattr(module, "Figure", Kept)
+    return drawn

@@ -7,6 +7,7 @@ import pytest
 
 from oneshot.experiments import __main__ as command
 from oneshot.experiments import scenes
+from helpers import keep_figures
 
 
 def _check(successes, trials=10, demo_scenes=False, checkpoint="runs/a/checkpoint.npz", raw=False):
@@ -74,14 +75,7 @@ def test_no_folder_is_a_one_line_error(tmp_path, capsys):
 def test_the_command_prints_each_pair_and_draws_a_row_each_beside_the_folder(tmp_path, capsys, monkeypatch):
     """Rows top to bottom in name order; in each, the score in its demonstrations' scenes filled and in new
     scenes open, at 100 x its rate, joined by a bar; x 0-100%; the picture is the folder's name + .png."""
-    pytest.importorskip("matplotlib")
-    drawn = []
-
-    class Kept(scenes.Figure):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            drawn.append(self)
-    monkeypatch.setattr(scenes, "Figure", Kept)
+    drawn = keep_figures(monkeypatch, scenes)
     folder = _two_pairs(tmp_path)
     assert command.main(["scenes", folder]) == 0
     out = capsys.readouterr().out.splitlines()

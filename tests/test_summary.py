@@ -11,6 +11,7 @@ from oneshot.experiments import __main__ as command, folders, parts, summary
 from oneshot.experiments import rows as sweep_rows
 from oneshot.experiments.fig2 import PROFILES
 from oneshot.experiments.rows import RunSpec
+from helpers import keep_figures
 from test_experiments import tiny_argv  # noqa: F401 (a fixture)
 from test_seeds import _write
 
@@ -92,15 +93,7 @@ def test_compare_is_mine_minus_theirs_at_the_shared_points_on_any_colours():
 @pytest.fixture
 def figures(monkeypatch):
     """The matplotlib Figures `summary.plot` draws (in order), each kept after it is saved."""
-    pytest.importorskip("matplotlib")
-    drawn = []
-
-    class Kept(summary.Figure):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            drawn.append(self)
-    monkeypatch.setattr(summary, "Figure", Kept)
-    return drawn
+    return keep_figures(monkeypatch, summary)
 
 
 def _lines(fig):
