@@ -15,6 +15,7 @@ import os
 import textwrap
 
 from oneshot.experiments.summary import Figure, read_evaluations
+from oneshot.tools import cli
 from oneshot.tools.files import atomic_write
 
 DEMO, NEW = "_demo_scenes", "_new_scenes"
@@ -24,37 +25,54 @@ def read_pairs(folder):
     """([{"label", "demo": (successes, trials), "new": (successes, trials)}], unpaired): the training
     colours' scores of each pair of scene-check files in `folder`, in name order, and the names of the JSON
     files left unpaired (e.g. evaluate's --other-colour-demo control, which has no new-scene twin).
-    ValueError names a pair that is not one policy's two checks."""
-    names = sorted(n for n in os.listdir(folder) if n.endswith(".json"))
-    firsts = [n for n in names if DEMO in n and n.replace(DEMO, NEW, 1) in names]
-    twins = [n.replace(DEMO, NEW, 1) for n in firsts]
+    ValueError names a file that is not the check its name says, or a pair that is not one policy's two
+    checks (one command, but --demo-scenes)."""
+    names = sorted(n for n in os.listdir(folder) if n.endswith(".json") and os.path.isfile(os.path.join(folder, n)))
+    for name in names:
+        if name.count(DEMO) + name.count(NEW) > 1:
+            raise ValueError(f"{name} names its check twice: name each check X{DEMO}[S].json or X{NEW}[S].json")
+    firsts = [n for n in names if DEMO in n and n.replace(DEMO, NEW) in names]
+    twins = [n.replace(DEMO, NEW) for n in firsts]
     pairs = []
     for name, twin in zip(firsts, twins):
         demo, new = read_evaluations([os.path.join(folder, n) for n in (name, twin)])
-        counts = _training_colours(demo, name, True), _training_colours(new, twin, False)
-        if demo["policy"].get("checkpoint") != new["policy"].get("checkpoint") or \
-                bool(demo["policy"]["recipe"].get("raw")) != bool(new["policy"]["recipe"].get("raw")):
-            raise ValueError(f"{name} and {twin} score two policies (other checkpoints, or one with --raw): a pair "
-                             f"is one policy's two checks")
-        pairs.append({"label": name.replace(DEMO, "", 1)[:-len(".json")], "demo": counts[0], "new": counts[1]})
+        (demo_counts, demo_policy), (new_counts, new_policy) = _check(demo, name, True), _check(new, twin, False)
+        if demo_policy != new_policy:
+            differ = sorted(k for k in {**demo_policy, **new_policy} if demo_policy.get(k) != new_policy.get(k))
+            raise ValueError(f"{name} and {twin} differ in {', '.join(differ)}: a pair is one policy's two checks, "
+                             f"one evaluate command but --demo-scenes")
+        pairs.append({"label": name.replace(DEMO, "")[:-len(".json")] or name, "demo": demo_counts, "new": new_counts})
     return pairs, [n for n in names if n not in firsts and n not in twins]
 
 
-def _training_colours(result, name, demo_scenes):
-    """(successes, trials) of an evaluate --json result on the training colours, checked to be the check
-    its name says (in the demonstrations' scenes or not); else ValueError."""
+def _check(result, name, demo_scenes):
+    """((successes, trials) on the training colours, the policy it records but --demo-scenes) of an
+    evaluate --json result, checked to be the check its name says (in the demonstrations' scenes or not,
+    not the other-colour control); else ValueError."""
     try:
-        recipe, train = result["policy"]["recipe"], result["train"]
-        counts = int(train["successes"]), int(train["trials"])
-        if not 0 <= counts[0] <= counts[1] or counts[1] < 1 or not isinstance(recipe, dict):
+        policy, train = dict(result["policy"]), result["train"]
+        recipe = {k: v for k, v in policy["recipe"].items() if k != "demo_scenes"}
+        counts = train["successes"], train["trials"]
+        if not all(type(c) is int for c in counts) or not 0 <= counts[0] <= counts[1] or counts[1] < 1 \
+                or not isinstance(policy.get("checkpoint"), str) or not policy["checkpoint"]:
             raise ValueError(counts)
-    except (KeyError, TypeError, ValueError):
-        raise ValueError(f"{name} holds no training-colour score: write it with `python -m oneshot.evaluate CKPT "
-                         f"--trials 5 --unadapted{' --demo-scenes' * demo_scenes} --json {name}`") from None
-    if bool(recipe.get("demo_scenes")) != demo_scenes:
+    except (AttributeError, KeyError, TypeError, ValueError):
+        raise ValueError(f"{name} holds no training-colour score of a checkpoint: write it with `python -m "
+                         f"oneshot.evaluate CKPT --trials 5 --unadapted{' --demo-scenes' * demo_scenes} --json "
+                         f"{name}`") from None
+    if recipe.get("other_colour_demo"):
+        raise ValueError(f"{name} is the other-colour control (evaluate --other-colour-demo), not a scene check: "
+                         f"name it ..._other_colour.json")
+    if bool(policy["recipe"].get("demo_scenes")) != demo_scenes:
         raise ValueError(f"{name} was scored {'in new scenes' if demo_scenes else 'in its demonstrations scenes'}, "
                          f"not as its name says: name it ...{NEW if demo_scenes else DEMO}.json")
-    return counts
+    return counts, {**policy, "recipe": recipe}
+
+
+def _is_png(path):
+    """Does the file at `path` begin as a PNG does (the only file the command replaces)?"""
+    with open(path, "rb") as f:
+        return f.read(8) == b"\x89PNG\r\n\x1a\n"
 
 
 def figure(pairs, title="Learnt the task, or its meta-training scenes?"):
@@ -69,7 +87,7 @@ def figure(pairs, title="Learnt the task, or its meta-training scenes?"):
         demo, new = (100 * s / t for s, t in (p["demo"], p["new"]))
         ax.plot([new, demo], [y, y], color="0.6", zorder=1)
         ax.plot([demo], [y], "o", color="C3", label="in scenes it meta-trained on" * (y == 0), zorder=2, clip_on=False)
-        ax.plot([new], [y], "o", mfc="white", color="C0", label="in new scenes" * (y == 0), zorder=3, clip_on=False)
+        ax.plot([new], [y], "o", mfc="none", color="C0", label="in new scenes" * (y == 0), zorder=3, clip_on=False)
     labels = [textwrap.fill(p["label"], 40, break_on_hyphens=False) for p in reversed(pairs)]
     ax.set_yticks(range(len(pairs)), labels, fontsize=7)
     ax.set_ylim(-0.6, len(pairs) - 0.4)
@@ -94,7 +112,8 @@ def add_scenes_command(commands):
                                            "and a picture: learnt the task, or its meta-training scenes?")
     s.add_argument("folder", help="a folder of X_demo_scenes.json / X_new_scenes.json pairs, e.g. "
                                   "results/fig2_ablation/scenes")
-    s.add_argument("--out", default=None, help="the picture (default: the folder's name + .png, beside it)")
+    s.add_argument("--out", type=cli.writable_file, default=None,
+                   help="the picture, a PNG (default: the folder's name + .png, beside it)")
     return s
 
 
@@ -102,9 +121,12 @@ def run_scenes_command(args, parser):
     """Print each pair's two scores and draw them; a folder without pairs is a one-line error (exit 2)."""
     if not os.path.isdir(args.folder):
         parser.error(f"no folder {args.folder}: name a folder of scene checks, e.g. results/fig2_ablation/scenes")
+    beside = os.path.abspath(args.folder) + ".png"                     # beside it, even for "." or "FOLDER/"
+    out = args.out or (beside if os.path.isabs(args.folder) else os.path.relpath(beside))
     try:
+        cli.replaces_only(out, _is_png, "--out", "a PNG picture")
         pairs, unpaired = read_pairs(args.folder)
-    except (FileNotFoundError, ValueError) as e:
+    except (OSError, ValueError) as e:
         parser.error(str(e))
     if not pairs:
         parser.error(f"{args.folder} holds no pair of X{DEMO}.json and X{NEW}.json (evaluate --json files)")
@@ -117,7 +139,6 @@ def run_scenes_command(args, parser):
     if Figure is None:
         print('no picture: it needs matplotlib (pip install ".[plots]")')
         return 0
-    out = args.out or os.path.normpath(args.folder) + ".png"
     plot_scenes(pairs, out)
     print(f"picture: {out}")
     return 0
