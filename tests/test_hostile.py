@@ -1016,7 +1016,7 @@ def test_a_newcomers_first_mistakes_are_named_with_their_fix(capsys, tmp_path):
     grader = lambda argv: sys.exit(exercises.main(argv))            # as its __main__ runs it
     (tmp_path / "alice.py").write_text("def is_success(e, t, r=0.05):\n    return True\n")
     for main, argv, words in (
-            (experiments.main, [], "error: name a command: fig2, summarise, seeds, ship or difference "),
+            (experiments.main, [], "error: name a command: fig2, summarise, seeds, ship, difference or scenes "),
             (benchmark.main, [], "error: name a command: expert, collect, maml or privileged "),
             (grader, ["grade", str(tmp_path / "alice.py")],
              f"is a file, not a folder of submissions: grade the folder that holds it, or check one exercise in it "
