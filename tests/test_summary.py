@@ -145,9 +145,10 @@ def test_a_figure_of_one_size_draws_a_row_per_line(tmp_path, figures):
     per line, the labels' order top to bottom, each row's mean as a point at 100 x its mean rate with its
     interval as a horizontal bar (never past the mean at either end, as above), and the lowest and highest
     seed as open circles only where two or more seeds ran (the footnote names them only then); x 0-100% of
-    the scored colours at that size; 0.3 inch a row; a long label wrapped at a space, not cut or split at a
-    hyphen; a line without a label left out, whatever its size."""
-    long = "MIL, every parameter adapts (mil-released+widths-flat, feature points)"
+    the scored colours at that size; 0.3 inch a row; each label followed by its line's name unless it is
+    the name, a long one wrapped at a space, not cut or split at a hyphen; a line without a label left
+    out, whatever its size."""
+    long = "MIL, every parameter adapts (the released code's loop, feature points)"
     s = {"methods": {"mil-conv0": [{"size": 9, "runs": 2, "mean_rate": 0.625, "ci_low": 0.5, "ci_high": 0.75,
                                     "min_rate": 0.5, "max_rate": 0.75}],
                      "lstm": [{"size": 9, "runs": 1, "mean_rate": 0.25, "ci_low": 0.375, "ci_high": 0.5,
@@ -156,19 +157,19 @@ def test_a_figure_of_one_size_draws_a_row_per_line(tmp_path, figures):
                                  "min_rate": 0.5, "max_rate": 0.5}],
                      "unlabelled": [{"size": 16, "runs": 1, "mean_rate": 0.5, "ci_low": 0.5, "ci_high": 0.5}]},
          "interval": "an interval by hand", "config": {"score": "test"}}
-    summary.plot(s, tmp_path / "fig2.png", {"mil-conv0": long, "random": "random policy", "lstm": "LSTM"},
+    summary.plot(s, tmp_path / "fig2.png", {"mil-conv0": long, "random": "random policy", "lstm": "lstm"},
                  title="one size by hand")
     (fig,) = figures
     (ax,) = fig.axes
     assert [t.get_text() for t in ax.get_yticklabels()] == [          # bottom to top
-        "LSTM", "random policy", "MIL, every parameter adapts\n(mil-released+widths-flat, feature\npoints)"]
+        "lstm", "random policy (random)", "MIL, every parameter adapts (the\nreleased code's loop, feature points)\n(mil-conv0)"]
     assert list(ax.get_yticks()) == [0, 1, 2] and ax.get_ylim() == (-0.6, 2.6)
     bars = {}
     for bar in ax.containers:
         point, _, (segments,) = bar.lines
         bars[bar.get_label()] = (point.get_xydata().tolist(), [[tuple(end) for end in seg] for seg in segments.get_segments()])
     assert bars == {long: ([[62.5, 2]], [[(50, 2), (75, 2)]]), "random policy": ([[50, 1]], [[(25, 1), (50, 1)]]),
-                    "LSTM": ([[25, 0]], [[(25, 0), (50, 0)]])}
+                    "lstm": ([[25, 0]], [[(25, 0), (50, 0)]])}
     circles = [line.get_xydata().tolist() for line in ax.lines if line.get_markerfacecolor() == "none"]
     assert circles == [[[50, 2], [75, 2]]]                         # seeds: mil-conv0's two, none for one run
     assert ax.get_xlim() == (0, 100) and ax.get_title() == "one size by hand"
@@ -213,7 +214,8 @@ def test_summarise_pairs_and_labels_the_lines_in_the_summarys_order(tmp_path, fi
     assert s["differences"][3]["difference"] == 0.75 and s["config"]["score"] == "validation"
     (fig,) = figures                                   # one size: a row per line, the first at the top
     assert [t.get_text() for t in fig.axes[0].get_yticklabels()][::-1] == [
-        "random policy", "LSTM", "MIL, every parameter adapts (step 0.25)", "MIL, first convolution adapts"]
+        "random policy (random)", "LSTM (lstm)", "MIL, every parameter adapts (step 0.25)\n(mil-all)",
+        "MIL, first convolution adapts\n(mil-conv0)"]
     assert fig.axes[0].get_title() == "Figure 2 (tiny profile, 2 seeds)"
     assert fig.axes[0].get_xlabel().startswith("one-shot success, validation colours (%)")
 

@@ -266,8 +266,9 @@ def plot(summary, path, labels, title="One-shot imitation of new colours vs. met
 
 def _plot_one_size(summary, path, labels, title, split, footnote, size):
     """`plot` of a summary whose lines all have one `size`: a row per line, top to bottom in the labels'
-    order, labelled on the y axis; its mean over seeds with the interval as a horizontal error bar and, for
-    two seeds or more, the lowest and highest seed as open circles (drawn over the mean)."""
+    order, labelled on the y axis with its label and name (as `--lines` takes it); its mean over seeds with
+    the interval as a horizontal error bar and, for two seeds or more, the lowest and highest seed as open
+    circles (drawn over the mean)."""
     fig = Figure(figsize=(6.4, 1.4 + LINE_ROW * len(labels)), dpi=150)
     ax = fig.add_subplot()
     seeds_drawn = False
@@ -283,7 +284,8 @@ def _plot_one_size(summary, path, labels, title, split, footnote, size):
         if p["runs"] > 1:
             ax.plot([100 * p["min_rate"], 100 * p["max_rate"]], [y, y], "o", mfc="none", color="0.3", ms=6, zorder=4)
             seeds_drawn = True
-    names = [textwrap.fill(label, 40, break_on_hyphens=False) for label in reversed(labels.values())]
+    names = [textwrap.fill(label if label == m else f"{label} ({m})", 40, break_on_hyphens=False)
+             for m, label in reversed(labels.items())]
     ax.set_yticks(range(len(labels)), names, fontsize=7)
     ax.set_ylim(-0.6, len(labels) - 0.4)
     ax.set_xlim(0, 100)
