@@ -21,7 +21,8 @@ from oneshot.experiments.fig2 import PROFILES, plan, run_context
 from oneshot.experiments.lines import LINES
 from oneshot.training import checkpoint, run_data, run_folder
 from oneshot.experiments import stats, summary
-from oneshot.experiments.summary import plot, summarise
+from oneshot.experiments.figure import plot
+from oneshot.experiments.summary import summarise
 from oneshot.experiments import rows as sweep_rows
 from oneshot.experiments.rows import COLUMNS, RunSpec
 from oneshot.experiments.sweep import sweep

@@ -7,7 +7,7 @@ import os
 
 import pytest
 
-from oneshot.experiments import __main__ as command, folders, parts, summary
+from oneshot.experiments import __main__ as command, figure, folders, parts, summary
 from oneshot.experiments import rows as sweep_rows
 from oneshot.experiments.fig2 import PROFILES
 from oneshot.experiments.rows import RunSpec
@@ -92,8 +92,8 @@ def test_compare_is_mine_minus_theirs_at_the_shared_points_on_any_colours():
 
 @pytest.fixture
 def figures(monkeypatch):
-    """The matplotlib Figures `summary.plot` draws (in order), each kept after it is saved."""
-    return keep_figures(monkeypatch, summary)
+    """The matplotlib Figures `figure.plot` draws (in order), each kept after it is saved."""
+    return keep_figures(monkeypatch, figure)
 
 
 def _lines(fig):
@@ -120,7 +120,7 @@ def test_the_figure_draws_each_lines_means_and_intervals_in_percent(tmp_path, fi
                                    {"size": 16, "mean_rate": 0.875, "ci_low": 0.75, "ci_high": 1.0}],
                      "unlabelled": [{"size": 9, "mean_rate": 0.5, "ci_low": 0.5, "ci_high": 0.5}]},
          "interval": "an interval by hand", "config": {"score": "validation"}}
-    summary.plot(s, tmp_path / "fig2.png", {"mil-conv0": "MIL", "random": "random policy", "lstm": "LSTM"},
+    figure.plot(s, tmp_path / "fig2.png", {"mil-conv0": "MIL", "random": "random policy", "lstm": "LSTM"},
                  title="Figure 2 by hand")
     (fig,) = figures
     (ax,) = fig.axes
@@ -134,9 +134,9 @@ def test_the_figure_draws_each_lines_means_and_intervals_in_percent(tmp_path, fi
     assert ax.get_xlabel() == "meta-training demonstrations (colours x demos per colour)"
     assert ax.get_title() == "Figure 2 by hand"
     assert [t.get_text() for t in fig.texts] == ["error bars: an interval by hand"]
-    summary.plot({"methods": {"lstm": s["methods"]["lstm"]}}, tmp_path / "none.png", {"lstm": "LSTM"})
+    figure.plot({"methods": {"lstm": s["methods"]["lstm"]}}, tmp_path / "none.png", {"lstm": "LSTM"})
     assert figures[1].axes[0].get_ylabel() == "one-shot success, held-out colours (%)"   # no config: no split named
-    summary.plot({"methods": {"lstm": s["methods"]["lstm"]}, "config": None}, tmp_path / "null.png", {"lstm": "LSTM"})
+    figure.plot({"methods": {"lstm": s["methods"]["lstm"]}, "config": None}, tmp_path / "null.png", {"lstm": "LSTM"})
     assert figures[2].axes[0].get_ylabel() == "one-shot success, held-out colours (%)"   # a null one: the same
 
 
@@ -157,7 +157,7 @@ def test_a_figure_of_one_size_draws_a_row_per_line(tmp_path, figures):
                                  "min_rate": 0.5, "max_rate": 0.5}],
                      "unlabelled": [{"size": 16, "runs": 1, "mean_rate": 0.5, "ci_low": 0.5, "ci_high": 0.5}]},
          "interval": "an interval by hand", "config": {"score": "test"}}
-    summary.plot(s, tmp_path / "fig2.png", {"mil-conv0": long, "random": "random policy", "lstm": "lstm"},
+    figure.plot(s, tmp_path / "fig2.png", {"mil-conv0": long, "random": "random policy", "lstm": "lstm"},
                  title="one size by hand")
     (fig,) = figures
     (ax,) = fig.axes
@@ -178,14 +178,14 @@ def test_a_figure_of_one_size_draws_a_row_per_line(tmp_path, figures):
     assert fig.get_figheight() == pytest.approx(1.4 + 0.3 * 3)
     assert (tmp_path / "fig2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     one_seed = {"methods": {"lstm": [{**s["methods"]["lstm"][0], "size": 2304}]}, "interval": "by hand"}
-    summary.plot(one_seed, tmp_path / "one.png", {"lstm": "LSTM"})
+    figure.plot(one_seed, tmp_path / "one.png", {"lstm": "LSTM"})
     assert [t.get_text() for t in figures[1].texts] == ["error bars: by hand"]     # no circle drawn, none named
     assert figures[1].axes[0].get_xlabel() == "one-shot success, held-out colours (%)\nat 2,304 meta-training demonstrations"
     twice = {"methods": {"lstm": s["methods"]["lstm"] * 2}}
     with pytest.raises(ValueError, match="2 points of lstm at size 9: one per line and size"):
-        summary.plot(twice, tmp_path / "twice.png", {"lstm": "LSTM"})
+        figure.plot(twice, tmp_path / "twice.png", {"lstm": "LSTM"})
     assert not (tmp_path / "twice.png").exists()
-    summary.plot({"methods": {"unlabelled": s["methods"]["unlabelled"]}}, tmp_path / "none.png", {"lstm": "LSTM"})
+    figure.plot({"methods": {"unlabelled": s["methods"]["unlabelled"]}}, tmp_path / "none.png", {"lstm": "LSTM"})
     assert (tmp_path / "none.png").exists() and not figures[-1].axes[0].lines    # no line to draw: empty axes
 
 

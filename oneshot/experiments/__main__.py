@@ -41,6 +41,7 @@ import sys
 
 from oneshot.experiments.difference import add_difference_command, run_difference_command
 from oneshot.experiments.fig2 import PROFILES, ensure_data, load_results, plan, run_context, run_one
+from oneshot.experiments.figure import PLOTS, plot
 from oneshot.experiments.folders import check_comparable, check_data, check_finished, check_results_folder, check_work_data
 from oneshot.experiments.lines import LABELS, LINES
 from oneshot.experiments.parts import narrow
@@ -48,8 +49,7 @@ from oneshot import methods
 from oneshot.experiments.rows import read_rows
 from oneshot.experiments.scenes import add_scenes_command, run_scenes_command
 from oneshot.experiments.ship import add_ship_command, run_ship_command
-from oneshot.experiments.summary import (PLOTS, compare, plot, pool_evaluations, read_evaluations, summarise,
-                                        write_summary)
+from oneshot.experiments.summary import compare, pool_evaluations, read_evaluations, summarise, write_summary
 from oneshot.experiments.sweep import SweepLocked, done_rows, sweep
 from oneshot.tools import cli
 

@@ -14,7 +14,8 @@ X_new_scenes[S].json, labelled X[S]) and draws the pairs, one row each:
 import os
 import textwrap
 
-from oneshot.experiments.summary import Figure, read_evaluations
+from oneshot.experiments.figure import Figure
+from oneshot.experiments.summary import read_evaluations
 from oneshot.tools import cli
 from oneshot.tools.files import atomic_write
 
