@@ -14,7 +14,7 @@ except ImportError:
     Figure = None
 PLOTS = Figure is not None                     # can `plot` draw here?
 LEGEND_ROW = 0.16                              # inches of figure per row of the legend (`plot`)
-LINE_ROW = 0.3                                 # inches of figure per line of a one-size figure (`plot`)
+LINE_ROW = 0.3                                 # inches of figure per row of a one-size figure (`plot`, scenes)
 
 
 def plot(summary, path, labels, title="One-shot imitation of new colours vs. meta-training data"):

@@ -14,7 +14,7 @@ X_new_scenes[S].json, labelled X[S]) and draws the pairs, one row each:
 import os
 import textwrap
 
-from oneshot.experiments.figure import Figure
+from oneshot.experiments.figure import LINE_ROW, Figure
 from oneshot.experiments.summary import read_evaluations
 from oneshot.tools import cli
 from oneshot.tools.files import atomic_write
@@ -82,7 +82,7 @@ def figure(pairs, title="Learnt the task, or its meta-training scenes?"):
     a long bar is memorising. In a notebook it shows itself; `plot_scenes` saves it."""
     if Figure is None:
         raise RuntimeError('the plot needs matplotlib: pip install ".[plots]"')
-    fig = Figure(figsize=(6.4, 1.5 + 0.3 * len(pairs)), dpi=150)
+    fig = Figure(figsize=(6.4, 1.5 + LINE_ROW * len(pairs)), dpi=150)
     ax = fig.add_subplot()
     for y, p in enumerate(reversed(pairs)):
         demo, new = (100 * s / t for s, t in (p["demo"], p["new"]))
@@ -132,7 +132,7 @@ def run_scenes_command(args, parser):
     if not pairs:
         parser.error(f"{args.folder} holds no pair of X{DEMO}.json and X{NEW}.json (evaluate --json files)")
     pct = lambda c: f"{100 * c[0] / c[1]:5.1f}% ({c[0]}/{c[1]})"
-    print(f"training colours, adapted on one demonstration: in its demonstrations' scenes / in new scenes")
+    print("training colours, adapted on one demonstration: in its demonstrations' scenes / in new scenes")
     for p in pairs:
         print(f"  {p['label']:44s} {pct(p['demo'])}  {pct(p['new'])}")
     if unpaired:
