@@ -33,48 +33,55 @@ RUNS = [RunSpec("mil-conv0", c, 3, s, 2) for c in (3, 4) for s in (0, 1)]
 CONTEXT = {"trials": 2, "profile": "t"}
 
 
+def threaded(runs, results_dir, work_dir, **kwargs):
+    """`sweep` of fake_run in two threads: the rows' bookkeeping without the seconds a pool of spawned
+    processes takes to start (the pool itself: test_the_pools_workers_end_with_the_sweep_however_it_ends)."""
+    with concurrent.futures.ThreadPoolExecutor(2) as executor:
+        return sweep(runs, results_dir, work_dir, CONTEXT, fake_run, executor=executor, progress=False, **kwargs)
+
+
 def test_rows_the_work_folder_did_not_produce_are_run_again_and_replaced(tmp_path):
     """The committed results of a fresh clone (a runs.csv whose work folders are elsewhere) are not a
     reproduction: every run is done here, and each row replaced by this work folder's."""
-    committed = sweep(RUNS, tmp_path / "theirs", tmp_path / "their_work", CONTEXT, fake_run, progress=False)
+    committed = threaded(RUNS, tmp_path / "theirs", tmp_path / "their_work")
     shutil.copytree(tmp_path / "theirs", tmp_path / "results")                   # what a clone holds
-    mine = sweep(RUNS, tmp_path / "results", tmp_path / "my_work", CONTEXT, fake_run, progress=False)
+    mine = threaded(RUNS, tmp_path / "results", tmp_path / "my_work")
     assert all(calls(tmp_path / "my_work" / r.run_id) == 1 for r in RUNS)      # every run done here
     assert without_time(mine) == without_time(committed)                         # the same numbers, here
-    again = sweep(RUNS, tmp_path / "results", tmp_path / "my_work", CONTEXT, fake_run, progress=False)
+    again = threaded(RUNS, tmp_path / "results", tmp_path / "my_work")
     assert again == mine and all(calls(tmp_path / "my_work" / r.run_id) == 1 for r in RUNS)   # now done
 
 
 def test_keep_rows_continues_ones_own_sweep_whose_work_folder_is_gone(tmp_path):
     done = [r for r in RUNS if r.seed == 0]
-    sweep(done, tmp_path / "results", tmp_path / "lost_work", CONTEXT, fake_run, progress=False)
-    rows = sweep(RUNS, tmp_path / "results", tmp_path / "new_work", CONTEXT, fake_run, progress=False, keep_rows=True)
+    threaded(done, tmp_path / "results", tmp_path / "lost_work")
+    rows = threaded(RUNS, tmp_path / "results", tmp_path / "new_work", keep_rows=True)
     assert len(rows) == len(RUNS)
     assert [r.run_id for r in RUNS if calls(tmp_path / "new_work" / r.run_id)] == [r.run_id for r in RUNS if r.seed == 1]
 
 
 def test_a_row_changed_by_hand_is_not_done(tmp_path):
-    sweep(RUNS, tmp_path / "results", tmp_path / "work", CONTEXT, fake_run, progress=False)
+    threaded(RUNS, tmp_path / "results", tmp_path / "work")
     csv = tmp_path / "results" / "runs.csv"
     rows = sweep_rows.read_rows(csv)
     rows[0]["successes"] = rows[0]["trials"]                                     # a better number, by hand
     sweep_rows.write_rows(rows, csv)
-    sweep(RUNS, tmp_path / "results", tmp_path / "work", CONTEXT, fake_run, progress=False)
+    threaded(RUNS, tmp_path / "results", tmp_path / "work")
     assert sorted(calls(tmp_path / "work" / r.run_id) for r in RUNS) == [1, 1, 1, 2]
 
 
 def test_two_sweeps_sharing_a_results_folder_keep_each_others_rows(tmp_path):
     first = [r for r in RUNS if r.seed == 0]
     second = [r for r in RUNS if r.seed == 1]
-    sweep(first, tmp_path / "out", tmp_path / "work0", CONTEXT, fake_run, progress=False)
-    sweep(second, tmp_path / "out", tmp_path / "work1", CONTEXT, fake_run, progress=False)
+    threaded(first, tmp_path / "out", tmp_path / "work0")
+    threaded(second, tmp_path / "out", tmp_path / "work1")
     assert len(sweep_rows.read_rows(tmp_path / "out" / "runs.csv")) == len(RUNS)
     # while one sweep writes to the results folder, another is refused at once
     (tmp_path / "out" / "runs.csv").unlink()
     with open(tmp_path / "out" / ".sweep.lock", "w") as held:
         fcntl.flock(held, fcntl.LOCK_EX)
         with pytest.raises(SweepLocked, match="another sweep is running with"):
-            sweep(second, tmp_path / "out", tmp_path / "work2", CONTEXT, fake_run, progress=False)
+            threaded(second, tmp_path / "out", tmp_path / "work2")
     assert not (tmp_path / "work2").exists() or not any((tmp_path / "work2").iterdir())
 
 
