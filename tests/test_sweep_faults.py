@@ -164,22 +164,14 @@ def interrupt(signum, frame):                   # as the command does: a plain k
 signal.signal(signal.SIGTERM, interrupt)
 from oneshot.experiments.rows import RunSpec
 from oneshot.experiments.sweep import sweep
-import test_sweep_faults
+import slow_run
 runs = [RunSpec("mil-conv0", 3, 3, s, 2) for s in range(4)]
 try:
-    sweep(runs, {out!r}, {work!r}, {{}}, test_sweep_faults.slow_run, progress=False, workers=2, stop_after=5.0)
+    sweep(runs, {out!r}, {work!r}, {{}}, slow_run.slow_run, progress=False, workers=2, stop_after=5.0)
 except KeyboardInterrupt:
     print("interrupted", flush=True)
     sys.exit(130)
 """
-
-
-def slow_run(spec, run_dir, context):
-    """A run that says its pid (in run_dir/pid) and then works for a minute, unless stopped."""
-    with open(os.path.join(run_dir, "pid"), "w") as f:
-        f.write(str(os.getpid()))
-    time.sleep(60)
-    return {"successes": 0, "trials": 1}
 
 
 def _alive(pid):
