@@ -41,6 +41,7 @@ def main(argv=None):
                    help="time steps per demonstration")
     p.add_argument("--noise", type=cli.finite_non_negative_float, default=0.0,
                    help="DART noise: std (N m) of torque noise executed but not recorded (default 0)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (e.g. when the output goes to a log file)")
     args = p.parse_args(argv)
     # Everything that can be checked is checked before the work: the task count against the split,
     # and that the dataset fits in memory (not after building a job list and allocating terabytes).
@@ -66,7 +67,8 @@ def main(argv=None):
     start = time.perf_counter()
     with unwritten(args.out):
         dataset = collect(args.tasks, args.demos, args.split, args.seed, workers, world_cfg,
-                          controller.ExpertConfig(action_noise=args.noise))
+                          controller.ExpertConfig(action_noise=args.noise),
+                          progress=not args.no_progress)
     seconds = time.perf_counter() - start
     meta = datasets.save(dataset, args.out)
     print(f"wrote {args.out}: {args.tasks} tasks x {args.demos} demos ({args.split} colours) with {workers} "

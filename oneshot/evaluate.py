@@ -61,6 +61,7 @@ def main(argv=None):
     p.add_argument("--any-palette", action="store_true",
                    help="allow datasets of another palette than the policy was trained with (a transfer test, "
                         "e.g. a grid-trained policy on the default hues)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (e.g. when the output goes to a log file)")
     p.add_argument("--json", type=cli.writable_file, default=None,
                    help="also write the results to this JSON file (checked before evaluating)")
     args = p.parse_args(argv)
@@ -123,7 +124,7 @@ def main(argv=None):
     for split, dataset in loaded.items():
         condition = method.conditioner(params, seed=args.seed)
         r = imitation.one_shot_success(condition, dataset, args.trials, args.seed, demo_scenes=args.demo_scenes,
-                                       other_colour_demo=args.other_colour_demo)
+                                       other_colour_demo=args.other_colour_demo, progress=not args.no_progress)
         r["ci95"] = lo, hi = wilson_interval(r["successes"], r["trials"])
         shown = ", each shown a demonstration of another colour" if args.other_colour_demo else ""
         print(f"{split} colours{shown}: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
@@ -132,7 +133,7 @@ def main(argv=None):
         results[split] = r
         if args.unadapted:
             u = imitation.one_shot_success(method.unadapted(params), dataset, args.trials, args.seed,
-                                           demo_scenes=args.demo_scenes)
+                                           demo_scenes=args.demo_scenes, progress=not args.no_progress)
             u["ci95"] = lo, hi = wilson_interval(u["successes"], u["trials"])
             print(f"{split} colours, unadapted policy: success {u['rate']:.3f} ({u['successes']}/{u['trials']}), "
                   f"95% CI [{lo:.3f}, {hi:.3f}]")

@@ -41,6 +41,7 @@ def main(argv=None):
                         "checkpoint's own config)")
     p.add_argument("--run", default=None, help="run folder (default: runs/<profile>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --run from its checkpoint")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (e.g. when the output goes to a log file)")
     # Each field's type says what it accepts (argparse names the flag when a value is refused); the
     # ints not listed here are counts where 0 is meaningful (eval_every, bias_transform, tasks, demos:
     # 0 is off or all; inner_steps: 0 is no adaptation; seed).
@@ -160,7 +161,8 @@ def main(argv=None):
     t0 = time.perf_counter()
     previous = signal.signal(signal.SIGTERM, _terminate)    # a plain kill stops training as Ctrl-C does
     try:
-        train(cfg, run, resume=args.resume, on_start=lambda: print(*banner, sep="\n") if banner else None)
+        train(cfg, run, resume=args.resume, progress=not args.no_progress,
+              on_start=lambda: print(*banner, sep="\n") if banner else None)
     finally:
         signal.signal(signal.SIGTERM, previous)
     done = (f"fitted the {cfg.method} policy" if not method.learns else

@@ -1,6 +1,7 @@
 """Round 3 of hostile inputs and faults (issue 30, classes 4-6; issue 31, researchers): processes end
 with one line however they are stopped, paths are checked before any work, a torn or foreign log line is
-named (and a torn last line forgiven), and a run resumes with its own config from a bare `--resume`."""
+named (and a torn last line forgiven), a run resumes with its own config from a bare `--resume`, and the
+long commands run without their progress bars when their output goes to a log."""
 import dataclasses
 import json
 import os
@@ -11,7 +12,7 @@ import time
 
 import pytest
 
-from oneshot import train
+from oneshot import collect, evaluate, train
 from oneshot.training import checkpoint, config, run_folder
 from test_hostile import refused
 
@@ -104,6 +105,24 @@ def test_a_bare_resume_continues_a_smoke_run_with_its_own_config(capsys, smoke, 
     ckpt = checkpoint.load(run / "checkpoint.npz")
     assert ckpt["iteration"] == 2 and ckpt["config"] == dataclasses.replace(
         config.PROFILES["smoke"], train_data=smoke.train_data, validation_data=smoke.validation_data, iterations=2)
+
+
+def test_collect_train_and_evaluate_draw_their_progress_bar_unless_told_not_to(capsys, smoke, tmp_path):
+    """`--no-progress`, as `fig2` has it: a log of these commands held every redraw of the bar (one
+    `evaluate` of 720 trials wrote 180 of them into one line)."""
+    tiny = ["--tasks", "2", "--demos", "2", "--horizon", "10", "--image-size", "8", "--workers", "1"]
+    data = ["--train-data", smoke.train_data, "--validation-data", smoke.validation_data, "--iterations", "1"]
+    commands = [(collect.main, lambda name: ["--out", str(tmp_path / f"{name}.npz"), *tiny], "collecting train demos"),
+                (train.main, lambda name: ["--profile", "smoke", "--run", str(tmp_path / name), *data], "meta-training"),
+                (evaluate.main, lambda name: [str(tmp_path / "quiet" / "checkpoint.npz"), "--trials", "1", "--train", "",
+                                              "--unadapted"],
+                 "one-shot trials (validation)")]
+    for main, argv, bar in commands:
+        main(argv("quiet") + ["--no-progress"])
+        out, err = capsys.readouterr()
+        assert out and bar not in err and "it/s" not in err, err
+        main(argv("shown"))
+        assert bar in capsys.readouterr().err
 
 
 def test_a_clone_named_oneshot_works_from_its_parent_folder(tmp_path):

@@ -94,7 +94,7 @@ def test_collect_takes_the_fewest_of_workers_cores_and_demos(tmp_path, monkeypat
     class Stop(Exception):
         pass
 
-    def spy(*args):
+    def spy(*args, **kwargs):
         raise Stop(args[4])                                         # collect(tasks, demos, split, seed, workers, ...)
     monkeypatch.setattr(collect.os, "cpu_count", lambda: cores)
     monkeypatch.setattr(collect, "collect", spy)
