@@ -41,7 +41,8 @@ def main(argv=None):
                    help="time steps per demonstration")
     p.add_argument("--noise", type=cli.finite_non_negative_float, default=0.0,
                    help="DART noise: std (N m) of torque noise executed but not recorded (default 0)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar (e.g. when the output goes to a log file)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (e.g. when the output goes to a log file)")
     args = p.parse_args(argv)
     # Everything that can be checked is checked before the work: the task count against the split,
     # and that the dataset fits in memory (not after building a job list and allocating terabytes).

@@ -61,7 +61,8 @@ def main(argv=None):
     p.add_argument("--any-palette", action="store_true",
                    help="allow datasets of another palette than the policy was trained with (a transfer test, "
                         "e.g. a grid-trained policy on the default hues)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar (e.g. when the output goes to a log file)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (e.g. when the output goes to a log file)")
     p.add_argument("--json", type=cli.writable_file, default=None,
                    help="also write the results to this JSON file (checked before evaluating)")
     args = p.parse_args(argv)

@@ -41,7 +41,8 @@ def main(argv=None):
                         "checkpoint's own config)")
     p.add_argument("--run", default=None, help="run folder (default: runs/<profile>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --run from its checkpoint")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar (e.g. when the output goes to a log file)")
+    p.add_argument("--no-progress", action="store_true",
+                   help="no progress bar (e.g. when the output goes to a log file)")
     # Each field's type says what it accepts (argparse names the flag when a value is refused); the
     # ints not listed here are counts where 0 is meaningful (eval_every, bias_transform, tasks, demos:
     # 0 is off or all; inner_steps: 0 is no adaptation; seed).
