@@ -3,9 +3,18 @@ import pytest
 
 from oneshot.data import collection, datasets
 from oneshot.expert.controller import ExpertConfig
+from oneshot.tools import host
 from oneshot.training.config import PROFILES
 
 SMOKE = PROFILES["smoke"]
+
+
+def pytest_configure(config):
+    """The suite's own process uses one BLAS thread, as every command of the package does
+    (`oneshot.tools.host`): its products are small, and beside other work on the cores (a kernel, a
+    worker, another program) OpenBLAS's spinning second thread made tests up to 4 times slower. Tests
+    of a command's own thread count set another count first (test_experiments.py)."""
+    host.blas_threads(1)
 
 
 @pytest.fixture(scope="session")
