@@ -64,8 +64,15 @@ def main(argv=None):
     p.add_argument("--no-progress", action="store_true",
                    help="no progress bar (e.g. when the output goes to a log file)")
     p.add_argument("--json", type=cli.writable_file, default=None,
-                   help="also write the results to this JSON file (checked before evaluating)")
+                   help="also write the results to this JSON file (checked before evaluating; it replaces only an earlier "
+                        "result of --json)")
     args = p.parse_args(argv)
+    if args.json:                               # an earlier result may be replaced; a README, a dataset not
+        try:
+            cli.replaces_only(args.json, lambda path: files.is_json_with(path, ("validation", "test")), "--json",
+                              "a result of evaluate --json")
+        except ValueError as e:
+            p.error(f"argument {e}")
     if getattr(args, args.split) == "":
         p.error(f"{FLAGS[args.split]} '' names no dataset, but the {args.split} colours are what this scores; "
                 f"name their dataset, or drop the flag to use the checkpoint's")

@@ -208,6 +208,35 @@ def test_evaluate_refuses_a_json_path_that_is_a_fifo_before_any_work(capsys, tmp
     assert "argument --json: refusing to write" in line and "a FIFO (named pipe)" in line and printed == ""
 
 
+def test_is_json_with_accepts_an_empty_file_or_an_object_holding_a_key_and_nothing_else(tmp_path):
+    """What an output of JSON may replace: its own kind (an object holding one of its keys, through a
+    link too) or an empty file; not a list, an object of another kind, text, bytes that are not UTF-8,
+    JSON nested too deep, or a file past the limit (however it begins)."""
+    path, link = tmp_path / "f.json", tmp_path / "link.json"
+    link.symlink_to(path)
+    for content, ours in ((b"", True), (b'{"test": {}}', True), (b'{\n "validation": 1, "x": 2}', True),
+                          (b'[{"test": 1}]', False), (b'{"policy": {}}', False), (b"# my notes\n", False),
+                          (b'{"test": "\xff"}', False), (b"[" * 40 + b"]" * 40, False), (b'{"test": 1', False)):
+        path.write_bytes(content)
+        assert files.is_json_with(path, ("validation", "test")) is ours, content
+        assert files.is_json_with(link, ("validation", "test")) is ours, content
+    path.write_bytes(b'{"test": 1}')
+    assert files.is_json_with(path, ("test",), limit=11) and not files.is_json_with(path, ("test",), limit=10)
+
+
+def test_evaluate_json_replaces_only_an_earlier_result_before_any_work(capsys, tmp_path):
+    """`--json README.md` replaced the README with JSON (and so a dataset, a script, notes): now a file
+    that is not an evaluate result (nor empty) is refused before the checkpoint is even read, and left."""
+    for name, content in (("README.md", b"# oneshot\n"), ("data.npz", b"PK\x03\x04"),
+                          ("summary.json", b'{"split": "test", "policies": []}')):
+        (tmp_path / name).write_bytes(content)
+        line, printed = refused(capsys, evaluate.main, ["missing.npz", "--json", str(tmp_path / name)])
+        assert line == (f"error: argument --json {tmp_path / name} exists and is not a result of evaluate --json "
+                        f"(this command would replace it); name another file, or move that one aside first "
+                        f"(see python -m oneshot.evaluate --help)") and printed == ""
+        assert (tmp_path / name).read_bytes() == content
+
+
 def test_collect_writes_through_a_link_and_refuses_one_into_a_read_only_folder(capsys, tmp_path):
     here, there = tmp_path / "here", tmp_path / "there"
     here.mkdir(), there.mkdir()

@@ -140,3 +140,23 @@ def test_seeds_needs_two_results_and_keeps_its_inputs(tmp_path, capsys):
     before = (tmp_path / "b.json").read_text()
     line, _ = refused(capsys, command.main, ["seeds", a, b, "--out", b])
     assert "would overwrite" in line and "one of the results to pool" in line and (tmp_path / "b.json").read_text() == before
+
+
+def test_seeds_out_replaces_only_an_earlier_summary(tmp_path, capsys):
+    """--out replaced any file (notes, runs.csv, an evaluate result not among those pooled) with the
+    summary: now only an earlier summary, or an empty file, is replaced; anything else is refused and left."""
+    a, b = _write(tmp_path / "a.json", seed=0), _write(tmp_path / "b.json", seed=1)
+    other = _write(tmp_path / "c.json", seed=2)
+    for name, content in (("notes.txt", "mine\n"), ("runs.csv", "method,size\n"), ("c.json", None)):
+        path = tmp_path / name
+        if content is not None:
+            path.write_text(content)
+        before = path.read_bytes()
+        line, printed = refused(capsys, command.main, ["seeds", a, b, "--out", str(path)])
+        assert f"--out {path} exists and is not a summary of seeds --out" in line and printed == ""
+        assert path.read_bytes() == before
+    out = tmp_path / "summary.json"
+    out.write_text("")
+    for pair in ((a, b), (a, other)):                   # empty, then an earlier summary: replaced
+        assert command.main(["seeds", *pair, "--out", str(out)]) == 0
+        assert [p["training_seed"] for p in json.loads(out.read_text())["policies"]] == [0, 1 if pair[1] == b else 2]

@@ -324,6 +324,10 @@ def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, caps
     assert written["validation"]["trials"] == 6 and written["adaptation_gain"]["pairs"] == 2
     assert results["validation_unadapted"]["trials"] == 6
     assert results["adaptation_gain"]["pairs"] == 2
+    evaluate.main([str(tmp_path / "run" / "checkpoint.npz"), "--validation", tiny.validation_data, "--train", "",
+                   "--trials", "1", "--json", str(out), "--no-progress"])         # an earlier result is replaced
+    with open(out) as f:
+        assert json.load(f)["validation"]["trials"] == 2
     # the trial scenes are not the demos' scenes
     heldout = datasets.load(tiny.validation_data)
     world_seeds = {imitation.trial_seed(0, i, j) for i in range(2) for j in range(3)}

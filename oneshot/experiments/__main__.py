@@ -51,7 +51,7 @@ from oneshot.experiments.scenes import add_scenes_command, run_scenes_command
 from oneshot.experiments.ship import add_ship_command, run_ship_command
 from oneshot.experiments.summary import compare, pool_evaluations, read_evaluations, summarise, write_summary
 from oneshot.experiments.sweep import SweepLocked, done_rows, sweep
-from oneshot.tools import cli
+from oneshot.tools import cli, files
 
 # Optional extras: the sweep runs without them and says which one a flag or the plot needs.
 try:
@@ -260,6 +260,8 @@ def _seeds(paths, out, argv):
     """Print (and with --out write) the pooled evaluate results of one recipe's seeds (`pool_evaluations`)."""
     if out:
         cli.not_an_input(out, paths, "--out", "one of the results to pool")
+        cli.replaces_only(out, lambda path: files.is_json_with(path, ("policies",)), "--out",
+                          "a summary of seeds --out")
     pooled = pool_evaluations(read_evaluations(paths), paths)
     pct = lambda x: f"{100 * x:.1f}%"
     for p in pooled["policies"]:

@@ -213,3 +213,20 @@ def loads_json(text, max_depth=MAX_JSON_DEPTH):
         elif bracket in "]}":
             depth -= 1
     return json.loads(text)
+
+
+def is_json_with(path, keys, limit=1 << 20):
+    """May an output that writes a JSON object holding one of `keys` replace the existing file `path`: is
+    it empty, or such an object (at most `limit` bytes)? Anything else (a README, a dataset, notes, JSON
+    of another kind) is not that output's to overwrite. A device or a FIFO is refused (`open_read`)."""
+    with open_read(path) as f:
+        head = f.read(limit + 1)
+    if not head:
+        return True
+    if len(head) > limit:
+        return False
+    try:
+        value = loads_json(head.decode("utf-8"))
+    except ValueError:                              # not UTF-8 (UnicodeDecodeError), not JSON, too deep
+        return False
+    return isinstance(value, dict) and any(key in value for key in keys)
