@@ -691,7 +691,7 @@ def test_resume_refuses_a_training_set_replaced_by_another_image_size(tmp_path, 
     ({"expert_cfg": ExpertConfig(action_noise=0.0)}, "noise 0.0, not 0.1", "collect"),   # notebook 1's old command
     ({"seed": 5}, "seed 5, not 0", "collect"),
     ({"demos_per_task": 2}, "2 demos per colour, not 3", "collect"),                   # 2-demo data at the path
-    # another split's file: collecting this split's data into it is no fix (it was the advice)
+    # another split's file: collecting this split's data into it, or moving it away, is no fix (each was the advice)
     ({"split": "validation"}, "split 'validation', not 'train'", "name"),
 ])
 def test_training_refuses_data_collected_with_other_settings_than_its_profile(tmp_path, tiny_cfg, change, says, fix):
@@ -703,9 +703,11 @@ def test_training_refuses_data_collected_with_other_settings_than_its_profile(tm
         run_folder.train(dataclasses.replace(tiny_cfg, train_data=str(other)), tmp_path / "run", progress=False)
     message = str(refused.value)
     assert message.startswith(f"{other} was collected with other settings than this run's train data: {says}; ")
-    collect = f"(this command then collects the right one: python -m oneshot.collect --out {other} --split train "
-    fixes = {"collect": f"; move it away {collect}", "name": f"; name a train dataset instead, or move it away {collect}"}
+    collect = "python -m oneshot.collect --out {} --split train --tasks "
+    fixes = {"collect": f"; move it away (this command then collects the right one: {collect.format(other)}",
+             "name": f"; name a train dataset instead (to make one: {collect.format('FILE')}"}
     assert fixes[fix] in message and not any(f in message for name, f in fixes.items() if name != fix), message
+    assert fix == "collect" or "move it away" not in message                  # the test set is not to be moved
     assert not (tmp_path / "run").exists()                          # refused before anything was written
 
 

@@ -7,6 +7,7 @@ what the profile asks for.
     test_set = run_data.load(cfg, "test")                            # evaluation only: never collected here
     train_set = run_data.subset(train_set, tasks=72, demos=12)
 """
+import dataclasses
 import os
 import re
 import shlex
@@ -107,11 +108,12 @@ def check(cfg, split, metadata, path, whose="this run's", another="another file"
         differ.append(f"{metadata.get('n_tasks')} colours x {metadata.get('demos_per_task')} demos, not the "
                       f"{named[0]} x {named[1]} its name says")
     if differ:
-        collect = f"this command then collects the right one: {collect_command(cfg, split)}"
-        if held["split"] not in (split, None):  # another split's file: most likely the wrong file was named
-            fix = f"name a {split} dataset instead, or move it away ({collect})"
+        if held["split"] not in (split, None):  # another split's file: most likely the wrong file was named,
+            fresh = dataclasses.replace(cfg, **{f"{split}_data": "FILE"})     # and it is not to be moved or replaced
+            fix = f"name a {split} dataset instead (to make one: {collect_command(fresh, split)})"
         else:
-            fix = f"move it away ({collect}), or name {another}"
+            fix = (f"move it away (this command then collects the right one: {collect_command(cfg, split)}), "
+                   f"or name {another}")
         raise DataMismatch(f"{path} was collected with other settings than {whose} {split} data: "
                            f"{'; '.join(differ)}; {fix}")
 
