@@ -152,7 +152,7 @@ def main(argv=None):
         settings = "the run's own settings" if args.resume and args.profile is None else f"profile {profile}"
         banner.append(f"{work}: {settings}, seed {cfg.seed}, into {ckpt_path}"
                       + (" (Ctrl-C saves it; --resume continues)" if method.learns else ""))
-    banner += [method.describe()] if method.describe() else []
+        banner += [method.describe()] if method.describe() else []
     host.tune_malloc()
     # One BLAS thread, in this process as in every shard (`oneshot.tools.host`): the products are small, so
     # a second thread gains at most a few percent on idle cores (default profile on one process: 0.0454 s
@@ -166,9 +166,13 @@ def main(argv=None):
               on_start=lambda: print(*banner, sep="\n") if banner else None)
     finally:
         signal.signal(signal.SIGTERM, previous)
-    done = (f"fitted the {cfg.method} policy" if not method.learns else
-            f"trained {_iterations(cfg.iterations - start)}" + (f" (from {start} to {cfg.iterations})" if start else ""))
-    print(f"{done} in {time.perf_counter() - t0:.0f} s; checkpoint: {ckpt_path}")
+    if method.learns and start == cfg.iterations:       # a finished run resumed: say so, not "trained 0"
+        print(f"nothing to train: {ckpt_path} has its {_iterations(start)} (resume with --iterations above "
+              f"{start} to train on)")
+    else:
+        done = (f"fitted the {cfg.method} policy" if not method.learns else f"trained {_iterations(cfg.iterations - start)}"
+                + (f" (from {start} to {cfg.iterations})" if start else ""))
+        print(f"{done} in {time.perf_counter() - t0:.0f} s; checkpoint: {ckpt_path}")
 
 
 def _iterations(n):

@@ -105,6 +105,19 @@ def test_a_bare_resume_continues_a_smoke_run_with_its_own_config(capsys, smoke, 
     ckpt = checkpoint.load(run / "checkpoint.npz")
     assert ckpt["iteration"] == 2 and ckpt["config"] == dataclasses.replace(
         config.PROFILES["smoke"], train_data=smoke.train_data, validation_data=smoke.validation_data, iterations=2)
+    # finished: a bare resume says there is nothing to train (it said "trained 0 meta-iterations (from 2 to 2)"),
+    # and below its count the advice is only to ask for more (without --iterations it trains to its own 2)
+    train.main(["--run", str(run), "--resume"])
+    out = capsys.readouterr().out
+    assert out == (f"nothing to train: {run / 'checkpoint.npz'} has its 2 meta-iterations (resume with --iterations "
+                   f"above 2 to train on)\n")
+    line, _ = refused(capsys, train.main, ["--run", str(run), "--resume", "--iterations", "1"])
+    assert line.endswith("nothing to train; resume with --iterations above 2")
+    checkpoint.save(run / "checkpoint.npz", ckpt["params"], ckpt["adam"], 2, ckpt["rng"],   # as if stopped at 2 of 5
+                    dataclasses.replace(ckpt["config"], iterations=5), ckpt["network"], ckpt["ema"], ckpt["world"],
+                    ckpt["seconds"])
+    line, _ = refused(capsys, train.main, ["--run", str(run), "--resume", "--iterations", "1"])
+    assert line.endswith("nothing to train; resume with --iterations above 2, or without --iterations (to its 5)")
 
 
 def test_collect_train_and_evaluate_draw_their_progress_bar_unless_told_not_to(capsys, smoke, tmp_path):

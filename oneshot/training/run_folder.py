@@ -213,9 +213,11 @@ def _resumable(cfg, ckpt_path):
                          f"same profile and options (only {', '.join(RESUMABLE)} may change), or start a "
                          f"new run folder")
     start = ckpt["iteration"]
-    if cfg.iterations < start:
+    if cfg.iterations < start:                  # without --iterations a run trains to its own count
+        own = ckpt["config"].iterations
+        bare = f", or without --iterations (to its {own})" if own > start else ""
         raise ValueError(f"{ckpt_path!r} is at iteration {start}, past --iterations {cfg.iterations}: nothing "
-                         f"to train; resume with --iterations above {start}, or without --iterations")
+                         f"to train; resume with --iterations above {start}{bare}")
     return ckpt
 
 
