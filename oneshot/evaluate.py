@@ -67,12 +67,6 @@ def main(argv=None):
                    help="also write the results to this JSON file (checked before evaluating; it replaces only an earlier "
                         "result of --json)")
     args = p.parse_args(argv)
-    if args.json:                               # an earlier result may be replaced; a README, a dataset not
-        try:
-            cli.replaces_only(args.json, lambda path: files.is_json_with(path, ("validation", "test")), "--json",
-                              "a result of evaluate --json")
-        except ValueError as e:
-            p.error(f"argument {e}")
     if getattr(args, args.split) == "":
         p.error(f"{FLAGS[args.split]} '' names no dataset, but the {args.split} colours are what this scores; "
                 f"name their dataset, or drop the flag to use the checkpoint's")
@@ -98,6 +92,8 @@ def main(argv=None):
         try:
             cli.not_an_input(args.json, [args.checkpoint] + [run_data.spec(cfg, split)[0] for split in FLAGS],
                              "--json", "a file this command reads")
+            cli.replaces_only(args.json, lambda path: files.is_json_with(path, ("validation", "test")), "--json",
+                              "a result of evaluate --json")         # an earlier result; not a README, a script
         except ValueError as e:
             p.error(f"argument {e}")
     if args.demo_scenes and args.trials < 2:

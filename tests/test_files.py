@@ -226,11 +226,13 @@ def test_is_json_with_accepts_an_empty_file_or_an_object_holding_a_key_and_nothi
 
 def test_evaluate_json_replaces_only_an_earlier_result_before_any_work(capsys, tmp_path):
     """`--json README.md` replaced the README with JSON (and so a dataset, a script, notes): now a file
-    that is not an evaluate result (nor empty) is refused before the checkpoint is even read, and left."""
+    that is not an evaluate result (nor empty) is refused before any data is read, and left."""
+    save_tiny(tmp_path / "c.npz")
     for name, content in (("README.md", b"# oneshot\n"), ("data.npz", b"PK\x03\x04"),
                           ("summary.json", b'{"split": "test", "policies": []}')):
         (tmp_path / name).write_bytes(content)
-        line, printed = refused(capsys, evaluate.main, ["missing.npz", "--json", str(tmp_path / name)])
+        line, printed = refused(capsys, evaluate.main, [str(tmp_path / "c.npz"), "--validation", "missing.npz",
+                                                        "--json", str(tmp_path / name)])
         assert line == (f"error: argument --json {tmp_path / name} exists and is not a result of evaluate --json "
                         f"(this command would replace it); name another file, or move that one aside first "
                         f"(see python -m oneshot.evaluate --help)") and printed == ""
