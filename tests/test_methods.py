@@ -143,6 +143,8 @@ def test_the_mil_method_trains_and_tests_with_the_inner_loop_of_its_config():
     released = methods.of(config.PROFILES["released"]).describe()     # what `train` prints first
     assert released.startswith("eq. (1): 1 step(s) of ") and "inner gradient clipped to +-20 " in released
     assert methods.of(cfg).describe().startswith("eq. (1): 2 step(s) of 0.1 on 1 x eq. (2)")
+    assert "meta-learnt per element" in methods.of(dataclasses.replace(cfg, learn_alpha=True)).describe()
+    assert "meta-learnt" not in methods.of(cfg).describe()
     assert all(methods.of(dataclasses.replace(cfg, method=name)).describe() == "" for name in methods.REGISTRY
                if name != "mil")
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from oneshot import demo
+from oneshot import demo, methods
 from oneshot.expert import controller
 from oneshot.maml import imitation
 from oneshot.tools import viz
@@ -305,7 +305,9 @@ def test_the_demo_adapts_each_colour_on_its_own_demo_and_counts_and_shows_what_i
     assert [r["success"] for r in adapted + unadapted] == [reached(r) for r in adapted + unadapted]
     assert result == {"successes": sum(map(reached, adapted)), "trials": 2 * len(test_colours),
                       "unadapted_successes": sum(map(reached, unadapted))}
-    assert f"{result['successes']}/{result['trials']} = " in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert f"{result['successes']}/{result['trials']} = " in printed
+    assert f"to each demo: {methods.of(ckpt['config']).describe()}\n3. Run it in 2 new scenes per colour" in printed
     strip = shown["strip"]                                    # rows: a demo, then an adapted trial of its colour
     picked = demo.shown_trials(np.reshape([reached(r) for r in adapted], (len(by_colour), 2)))   # chosen by them
     assert [id(x) for x in strip] == [id(x) for i, j in picked

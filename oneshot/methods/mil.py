@@ -36,6 +36,8 @@ def describe(cfg):
     if loop.clip:
         words.append(f"inner gradient clipped to +-{loop.clip:g} on that loss (+-{loop.clip / loop.loss_scale:g} "
                      f"on eq. (2) summed, +-{loop.clip * released / loop.loss_scale:g} on the released code's)")
+    if cfg.learn_alpha:
+        words.append("the step sizes meta-learnt per element, from that step")
     words.append(f"adapting {cfg.inner_params}" + (f" but {', '.join(loop.frozen)}*" if loop.frozen else ""))
     return "; ".join(words)
 
