@@ -18,7 +18,7 @@ import warnings
 import numpy as np
 import pytest
 
-from oneshot import demo
+from oneshot import __main__ as top, demo
 from oneshot.benchmark import __main__ as benchmark
 from oneshot.exercises import __main__ as exercises
 from oneshot.experiments import __main__ as experiments
@@ -999,6 +999,20 @@ def test_python_m_exits_with_the_status_and_one_line(tmp_path, module, argv):
                           cwd=tmp_path, env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60)
     assert done.returncode == 2 and len(done.stderr.splitlines()) == 1, done.stderr
     assert done.stderr.startswith("error: ") and done.stdout == ""
+    nothing_written(tmp_path)
+
+
+def test_python_m_oneshot_names_every_command_in_one_line(tmp_path):
+    """`python -m oneshot` was Python's own "No module named oneshot.__main__" (exit 1). Every module of the
+    package that runs with -m (a module with a __main__ block, or a package with __main__.py) is named."""
+    package = pathlib.Path(ROOT) / "oneshot"
+    runnable = {p.stem if p.name != "__main__.py" else p.parent.name for p in package.rglob("*.py")
+                if 'if __name__ == "__main__"' in p.read_text() and p.parent != package / "__pycache__"} - {"oneshot"}
+    assert set(top.COMMANDS) == runnable
+    done = subprocess.run([sys.executable, "-m", "oneshot"], capture_output=True, text=True, cwd=tmp_path,
+                          env=dict(os.environ, PYTHONPATH=str(ROOT)), timeout=60)
+    assert done.returncode == 2 and done.stdout == "" and len(done.stderr.splitlines()) == 1, done.stderr
+    assert done.stderr.startswith("error: ") and all(name in done.stderr for name in top.COMMANDS)
     nothing_written(tmp_path)
 
 
