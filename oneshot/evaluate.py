@@ -134,6 +134,9 @@ def main(argv=None):
         print(f"{split} colours{shown}: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
               f"95% CI [{lo:.3f}, {hi:.3f}]; failures: {r['failures']['near_miss']} near misses (closest "
               f"to the target, but not within reach), {r['failures']['wrong_object']} at a distractor")
+        note = run_data.fewer_colours(cfg, split, len(dataset["task_colours"]), "this scored")
+        if note and split != "train":        # a small file: fewer colours than the numbers reported on its split
+            print(note)
         results[split] = r
         if args.unadapted:
             u = imitation.one_shot_success(method.unadapted(params), dataset, args.trials, args.seed,

@@ -58,6 +58,8 @@ def test_a_dataset_of_fewer_colours_than_the_profile_collects_is_used_and_said(t
     assert f"note: {tiny.validation_data} holds 2 of the 12 validation colours" in err
     run_data.ensure(dataclasses.replace(tiny, tasks=2))
     assert "train colours" not in capsys.readouterr().err
+    assert run_data.fewer_colours(tiny, "validation", 12, "x") is None                  # the whole split: no note
+    assert run_data.fewer_colours(tiny, "validation", 11, "x").startswith(f"note: {tiny.validation_data} holds 11 of")
 
 
 def test_a_resume_with_another_config_is_refused_before_any_data_is_collected(tiny, tmp_path):
@@ -311,6 +313,8 @@ def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, caps
     assert sum(r["failures"].values()) == r["trials"] - r["successes"]   # every failure gets a kind
     printed = capsys.readouterr().out
     assert "validation colours: one-shot success" in printed
+    assert f"\nnote: {tiny.validation_data} holds 2 of the 12 validation colours this profile collects; this " \
+           f"scored those 2 (the whole set: " in printed                   # not the reported numbers' colours
     lines = printed.splitlines()
     first = next(i for i, line in enumerate(lines) if line.startswith("validation colours, by colour: "))
     block = [lines[first], *itertools.takewhile(lambda line: line.startswith("  "), lines[first + 1:])]

@@ -143,11 +143,20 @@ def ensure(cfg, splits=("train", "validation"), progress=True):
                                           expert_cfg=ExpertConfig(action_noise=cfg.demo_noise))
             datasets.save(data, path)
         out.append(load(cfg, split))
-        held, whole = len(out[-1]["task_colours"]), collected_size(cfg, split)[0]   # counted, not read
-        if held < whole and not (split == "train" and cfg.tasks):     # a small or stale file: said, not refused
-            print(f"note: {path} holds {held} of the {whole} {split} colours this profile collects; the run "
-                  f"uses those {held} (the whole set: move it away, or {collect_command(cfg, split)})", file=sys.stderr)
+        note = fewer_colours(cfg, split, len(out[-1]["task_colours"]), "the run uses")
+        if note and not (split == "train" and cfg.tasks):   # a small or stale file: said, not refused
+            print(note, file=sys.stderr)
     return out
+
+
+def fewer_colours(cfg, split, held, uses):
+    """A note if a dataset of `split` holds fewer colours, `held`, than the profile collects
+    (`collected_size`), else None; `uses` words what is done with those ("the run uses")."""
+    path, whole = spec(cfg, split)[0], collected_size(cfg, split)[0]
+    if held < whole:
+        return (f"note: {path} holds {held} of the {whole} {split} colours this profile collects; {uses} those "
+                f"{held} (the whole set: move it away, or {collect_command(cfg, split)})")
+    return None
 
 
 def subset(dataset, tasks=0, demos=0):
