@@ -401,6 +401,13 @@ def test_cli_summarise_redoes_a_finished_sweeps_summary_and_refuses_an_unfinishe
     assert command.main(["summarise", str(out)]) == 0
     after = json.loads((out / "summary.json").read_text())
     assert after["summarised_by"] == f"python -m oneshot.experiments summarise {out}"
+    assert capsys.readouterr().out.endswith(f"runs: {out / 'summary.json'}\n")         # no figure: none said
+    drawn = []
+    monkeypatch.setattr(command, "PLOTS", True)
+    monkeypatch.setattr(command, "plot", lambda summary, path, *args, **kwargs: drawn.append(path))
+    assert command.main(["summarise", str(out)]) == 0
+    assert capsys.readouterr().out.endswith(f"runs: {out / 'summary.json'}\nfigure: {out / 'fig2.png'}\n")
+    assert drawn == [str(out / "fig2.png")]
     assert (after["command"], after["config"], after["methods"]) == (before["command"], before["config"], before["methods"])
     rows = sweep_rows.read_rows(out / "runs.csv")           # a run's row gone: the sweep is not finished
     gone = next(r for r in rows if (r["method"], r["seed"]) == ("mil-conv0", 0) and r["size"] == min(r["size"] for r in rows))

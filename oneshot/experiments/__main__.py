@@ -253,6 +253,7 @@ def _summarise(folder, argv):
         name = f"{config['name']} profile, " if config.get("name") else ""     # none recorded: no name
         plot(summary, os.path.join(folder, "fig2.png"), _labels(lines),
              title=f"Figure 2 ({name}{n} seed{'s' * (n > 1)})")
+        print(f"figure: {os.path.join(folder, 'fig2.png')}")
     return 0
 
 
