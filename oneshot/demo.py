@@ -182,8 +182,7 @@ def main(argv=None):
     max_torque = world.config.arm.max_torque
 
     # 2-3. Adapt on the one demo, act in new scenes; the unadapted policy for contrast.
-    how = method.describe() if method.adapts else f"the {cfg.method} policy reads it (no gradient step)"
-    print(f"2. Adapt the meta-trained policy ({ckpt['iteration']} meta-iterations) to each demo: {how}")
+    print(f"2. Adapt the meta-trained policy ({ckpt['iteration']} meta-iterations) to each demo: {method.describe()}")
     print(f"3. Run it in {args.trials} new scene{'s' * (args.trials != 1)} per colour (new positions, new distractors)")
     wins = base_wins = 0
     trials = {}                                            # (colour's position i, trial j) -> (adapted, unadapted)

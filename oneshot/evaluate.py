@@ -92,7 +92,7 @@ def main(argv=None):
         try:
             cli.not_an_input(args.json, [args.checkpoint] + [run_data.spec(cfg, split)[0] for split in FLAGS],
                              "--json", "a file this command reads")
-            cli.replaces_only(args.json, lambda path: files.is_json_with(path, ("validation", "test")), "--json",
+            cli.replaces_only(args.json, lambda path: files.is_json_with(path, ("policy",)), "--json",
                               "a result of evaluate --json")         # an earlier result; not a README, a script
         except ValueError as e:
             p.error(f"argument {e}")
@@ -113,6 +113,12 @@ def main(argv=None):
             raise datasets.DatasetError(f"{path} holds {dataset['metadata']['split']} colours, not {split} colours; "
                                         f"name the {split} dataset with {FLAGS[split]}")
         fit_check.check_data(ckpt, dataset["metadata"], args.checkpoint, path, palette=not args.any_palette)
+    notes = {}                               # a small file scores fewer colours than the numbers reported on its split
+    for split, dataset in loaded.items():    # (counted in the dataset's own palette: --any-palette)
+        mode = dataset["metadata"].get("world", {}).get("palette", {}).get("mode", cfg.palette)
+        if split != "train":
+            notes[split] = run_data.fewer_colours(dataclasses.replace(cfg, palette=mode), split,
+                                                  len(dataset["task_colours"]), "this scored")
     if "train" in loaded:                    # the contrast: the colours and demos the run meta-trained on, no more
         loaded["train"] = run_data.subset(loaded["train"], cfg.tasks, cfg.demos)
     few = {split: len(d["task_colours"]) for split, d in loaded.items() if len(d["task_colours"]) < 2}
@@ -134,9 +140,8 @@ def main(argv=None):
         print(f"{split} colours{shown}: one-shot success {r['rate']:.3f} ({r['successes']}/{r['trials']}), "
               f"95% CI [{lo:.3f}, {hi:.3f}]; failures: {r['failures']['near_miss']} near misses (closest "
               f"to the target, but not within reach), {r['failures']['wrong_object']} at a distractor")
-        note = run_data.fewer_colours(cfg, split, len(dataset["task_colours"]), "this scored")
-        if note and split != "train":        # a small file: fewer colours than the numbers reported on its split
-            print(note)
+        if notes.get(split):
+            print(notes[split])
         results[split] = r
         if args.unadapted:
             u = imitation.one_shot_success(method.unadapted(params), dataset, args.trials, args.seed,

@@ -27,7 +27,7 @@ from oneshot.policy.network import INITS
 from oneshot.tools import cli, host
 from oneshot.training import checkpoint, run_data
 from oneshot.training.config import PROFILES, TrainConfig
-from oneshot.training.run_folder import RESUMABLE, RUN_FILES, RunLocked, TrainingDiverged, train
+from oneshot.training.run_folder import RESUMABLE, RUN_FILES, RunLocked, TrainingDiverged, nothing_to_train, train
 from oneshot.world import palette
 from oneshot.world.palette import PaletteConfig
 from oneshot.world.reach import WorldConfig
@@ -145,6 +145,9 @@ def main(argv=None):
     if method.shards > frames:
         p.error(f"argument --shards: the processes share each demo's {frames} frames, so 1 to {frames}; "
                 f"got {cfg.shards}")
+    if saved and method.learns and start == cfg.iterations:     # a finished run resumed: say so, and do nothing
+        print(nothing_to_train(ckpt_path, start, cfg.iterations, stored.iterations))    # (not "trained 0")
+        return None
     banner = []                                # printed once the run folder is ours (not if another run has it)
     if start < cfg.iterations or not method.learns:     # (else train() says there is nothing to train)
         work = (f"fitting the {cfg.method} policy" if not method.learns else
@@ -166,13 +169,9 @@ def main(argv=None):
               on_start=lambda: print(*banner, sep="\n") if banner else None)
     finally:
         signal.signal(signal.SIGTERM, previous)
-    if method.learns and start == cfg.iterations:       # a finished run resumed: say so, not "trained 0"
-        print(f"nothing to train: {ckpt_path} has its {_iterations(start)} (resume with --iterations above "
-              f"{start} to train on)")
-    else:
-        done = (f"fitted the {cfg.method} policy" if not method.learns else f"trained {_iterations(cfg.iterations - start)}"
-                + (f" (from {start} to {cfg.iterations})" if start else ""))
-        print(f"{done} in {time.perf_counter() - t0:.0f} s; checkpoint: {ckpt_path}")
+    done = (f"fitted the {cfg.method} policy" if not method.learns else
+            f"trained {_iterations(cfg.iterations - start)}" + (f" (from {start} to {cfg.iterations})" if start else ""))
+    print(f"{done} in {time.perf_counter() - t0:.0f} s; checkpoint: {ckpt_path}")
 
 
 def _iterations(n):

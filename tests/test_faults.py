@@ -107,17 +107,24 @@ def test_a_bare_resume_continues_a_smoke_run_with_its_own_config(capsys, smoke, 
         config.PROFILES["smoke"], train_data=smoke.train_data, validation_data=smoke.validation_data, iterations=2)
     # finished: a bare resume says there is nothing to train (it said "trained 0 meta-iterations (from 2 to 2)"),
     # and below its count the advice is only to ask for more (without --iterations it trains to its own 2)
-    train.main(["--run", str(run), "--resume"])
-    out = capsys.readouterr().out
-    assert out == (f"nothing to train: {run / 'checkpoint.npz'} has its 2 meta-iterations (resume with --iterations "
-                   f"above 2 to train on)\n")
+    os.rename(smoke.validation_data, smoke.validation_data + ".aside")                # nothing is read or collected
+    try:
+        assert train.main(["--run", str(run), "--resume"]) is None
+    finally:
+        os.rename(smoke.validation_data + ".aside", smoke.validation_data)
+    out, err = capsys.readouterr()
+    assert out == (f"{str(run / 'checkpoint.npz')!r} is at iteration 2, which --iterations 2 asks for: nothing to "
+                   f"train; resume with --iterations above 2\n") and err == ""
     line, _ = refused(capsys, train.main, ["--run", str(run), "--resume", "--iterations", "1"])
-    assert line.endswith("nothing to train; resume with --iterations above 2")
+    assert line.endswith("past --iterations 1: nothing to train; resume with --iterations above 2")
     checkpoint.save(run / "checkpoint.npz", ckpt["params"], ckpt["adam"], 2, ckpt["rng"],   # as if stopped at 2 of 5
                     dataclasses.replace(ckpt["config"], iterations=5), ckpt["network"], ckpt["ema"], ckpt["world"],
                     ckpt["seconds"])
     line, _ = refused(capsys, train.main, ["--run", str(run), "--resume", "--iterations", "1"])
     assert line.endswith("nothing to train; resume with --iterations above 2, or without --iterations (to its 5)")
+    train.main(["--run", str(run), "--resume", "--iterations", "2"])
+    assert capsys.readouterr().out.endswith("which --iterations 2 asks for: nothing to train; resume with "
+                                            "--iterations above 2, or without --iterations (to its 5)\n")
 
 
 def test_collect_train_and_evaluate_draw_their_progress_bar_unless_told_not_to(capsys, smoke, tmp_path):

@@ -727,6 +727,15 @@ def test_evaluate_on_another_palette_only_when_asked(capsys, tmp_path, trained):
     assert "trained on the 'hues' palette but" in line and "--any-palette" in line
     results = cli.run(evaluate.main, [trained, "--validation", grid, "--train", "", "--trials", "1", "--any-palette"])
     assert results["validation"]["trials"] == 2                     # a transfer test: it runs
+    # its note counts the grid's colours, and its collect command makes grid colours (not hues over the file)
+    assert f"holds 2 of the 108 validation colours this profile collects; this scored those 2 (the whole set: move " \
+           f"it away, or python -m oneshot.collect --out {grid} --split validation --tasks 108 " in capsys.readouterr().out
+    named = str(tmp_path / "grid_validation_c2_d1_s1.npz")      # named for 1 demo, fewer than the profile's 2: the
+    os.rename(grid, named)                                      # note's count raised DataMismatch after the trials
+    results = cli.run(evaluate.main, [trained, "--validation", named, "--train", "", "--trials", "1", "--any-palette",
+                                      "--json", str(tmp_path / "r.json")])
+    assert results["validation"]["trials"] == 2 and (tmp_path / "r.json").exists()
+    assert "this scored" not in capsys.readouterr().out
 
 
 def test_evaluate_raw_on_a_run_without_a_moving_average_says_it_changes_nothing(capsys, trained):

@@ -338,7 +338,7 @@ def test_evaluate_command_counts_trials_and_uses_new_scenes(tiny, tmp_path, caps
     assert not world_seeds & set(heldout["seeds"].ravel().tolist())
 
 
-def test_evaluate_contrasts_only_the_colours_the_run_meta_trained_on(tiny, tmp_path):
+def test_evaluate_contrasts_only_the_colours_the_run_meta_trained_on(tiny, tmp_path, capsys):
     # a run on the first 2 of the dataset's 3 training colours (as a Figure 2 run on part of the data):
     # the contrast scores those 2 colours, not the third, which the run never saw
     run_folder.train(dataclasses.replace(tiny, iterations=2, tasks=2, demos=2), tmp_path / "run", progress=False)
@@ -351,6 +351,8 @@ def test_evaluate_contrasts_only_the_colours_the_run_meta_trained_on(tiny, tmp_p
     # --unadapted: the policy without its inner step on the same colours (and scenes) too
     assert sorted(results["train_unadapted"]["per_colour"]) == sorted(colours[:2])
     assert results["validation_unadapted"]["trials"] == results["validation"]["trials"] == 2 * 2
+    printed = capsys.readouterr().out                   # the small file scored is noted; the contrast's, not
+    assert "validation colours this profile collects" in printed and "train colours this profile" not in printed
 
 
 def test_evaluate_can_act_in_the_scenes_of_the_demonstrations(tiny, tmp_path, monkeypatch):

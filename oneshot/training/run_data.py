@@ -152,7 +152,11 @@ def ensure(cfg, splits=("train", "validation"), progress=True):
 def fewer_colours(cfg, split, held, uses):
     """A note if a dataset of `split` holds fewer colours, `held`, than the profile collects
     (`collected_size`), else None; `uses` words what is done with those ("the run uses")."""
-    path, whole = spec(cfg, split)[0], collected_size(cfg, split)[0]
+    path = spec(cfg, split)[0]
+    try:
+        whole = collected_size(cfg, split)[0]
+    except DataMismatch:                        # a file named for other sizes: `check`'s to refuse, not a note's
+        return None
     if held < whole:
         return (f"note: {path} holds {held} of the {whole} {split} colours this profile collects; {uses} those "
                 f"{held} (the whole set: move it away, or {collect_command(cfg, split)})")

@@ -213,12 +213,18 @@ def _resumable(cfg, ckpt_path):
                          f"same profile and options (only {', '.join(RESUMABLE)} may change), or start a "
                          f"new run folder")
     start = ckpt["iteration"]
-    if cfg.iterations < start:                  # without --iterations a run trains to its own count
-        own = ckpt["config"].iterations
-        bare = f", or without --iterations (to its {own})" if own > start else ""
-        raise ValueError(f"{ckpt_path!r} is at iteration {start}, past --iterations {cfg.iterations}: nothing "
-                         f"to train; resume with --iterations above {start}{bare}")
+    if cfg.iterations < start:
+        raise ValueError(nothing_to_train(ckpt_path, start, cfg.iterations, ckpt["config"].iterations))
     return ckpt
+
+
+def nothing_to_train(ckpt_path, start, iterations, own):
+    """What resuming a run at iteration `start` with --iterations `iterations` <= start says, and how to
+    train on: --iterations above `start`, or none where the checkpoint's own count `own` is above it."""
+    where = f"past --iterations {iterations}" if iterations < start else f"which --iterations {iterations} asks for"
+    bare = f", or without --iterations (to its {own})" if own > start else ""
+    return (f"{ckpt_path!r} is at iteration {start}, {where}: nothing to train; resume with --iterations above "
+            f"{start}{bare}")
 
 
 def _resume(ckpt, cfg, ckpt_path, log_path, *data):
