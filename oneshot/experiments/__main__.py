@@ -261,8 +261,7 @@ def _seeds(paths, out, argv):
     """Print (and with --out write) the pooled evaluate results of one recipe's seeds (`pool_evaluations`)."""
     if out:
         cli.not_an_input(out, paths, "--out", "one of the results to pool")
-        cli.replaces_only(out, lambda path: files.is_json_with(path, ("policies",)), "--out",
-                          "a summary of seeds --out")
+        cli.replaces_only(out, lambda path: files.is_json_with(path, ("policies",)), "--out", "a summary of seeds --out")
     pooled = pool_evaluations(read_evaluations(paths), paths)
     pct = lambda x: f"{100 * x:.1f}%"
     for p in pooled["policies"]:
