@@ -216,7 +216,8 @@ def test_is_json_with_accepts_an_empty_file_or_an_object_holding_a_key_and_nothi
     link.symlink_to(path)
     for content, ours in ((b"", True), (b'{"test": {}}', True), (b'{\n "validation": 1, "x": 2}', True),
                           (b'[{"test": 1}]', False), (b'{"policy": {}}', False), (b"# my notes\n", False),
-                          (b'{"test": "\xff"}', False), (b'{"test": ' + b"[" * 40 + b"]" * 40 + b"}", False), (b'{"test": 1', False)):
+                          (b'{"test": "\xff"}', False), (b'{"test": ' + b"[" * 40 + b"]" * 40 + b"}", False),
+                          (b'{"test": 1', False)):
         path.write_bytes(content)
         assert files.is_json_with(path, ("validation", "test")) is ours, content
         assert files.is_json_with(link, ("validation", "test")) is ours, content
